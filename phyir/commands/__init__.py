@@ -1,0 +1,1 @@
+"""Subcommands of the phyir CLI (see phyir.cli)."""

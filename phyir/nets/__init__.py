@@ -1,0 +1,1 @@
+"""PhyIR networks: GMNet, LNet, GSNet."""

@@ -1,0 +1,1 @@
+"""Synthetic indoor panoramas with ground truth."""

@@ -1,0 +1,1 @@
+"""GLSL shaders, shipped inside the wheel (importlib.resources.files("viewer.shaders"))."""

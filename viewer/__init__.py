@@ -1,0 +1,1 @@
+"""phyir-view: the interactive panorama inspector and object-insertion editor (owns all GL)."""
