@@ -99,23 +99,35 @@ def points_to_uv(points: Tensor, H: int, W: int, dim: int = 0) -> tuple[Tensor, 
 def normals_from_depth(depth: Tensor) -> Tensor:
     """Unit normals [..., 3, H, W] from radial depth [..., 1, H, W], facing the camera.
 
-    Central differences of the 3D points; the longitude neighbours wrap around the seam.  At each
-    pixel the smaller of the one-sided differences is taken in each direction so creases (wall
-    corners, object edges) don't smear across the discontinuity.  Rows at the poles use one-sided
-    differences.
+    Cross product of one-sided differences of the 3D points; the longitude neighbours wrap around
+    the seam.  In each direction the side whose points continue most straight (smaller second
+    difference relative to the step) is used, so creases (wall corners, object edges) don't
+    smear across the discontinuity.  The pole rows use their only side.
     """
     p = depth_to_points(depth)
-    right = torch.roll(p, -1, dims=-1) - p
-    left = p - torch.roll(p, 1, dims=-1)
-    down = torch.cat((p[..., 1:, :] - p[..., :-1, :], p[..., -1:, :] - p[..., -2:-1, :]), dim=-2)
-    up = torch.cat((p[..., 1:2, :] - p[..., :1, :], p[..., 1:, :] - p[..., :-1, :]), dim=-2)
-    du = torch.where(_norm(right) < _norm(left), right, left)
-    dv = torch.where(_norm(down) < _norm(up), down, up)
+    H = p.shape[-2]
+    col = lambda k: torch.roll(p, -k, dims=-1)  # noqa: E731  p at column j + k (wraps)
+    row = lambda k: p[..., (torch.arange(H, device=p.device) + k).clamp(0, H - 1), :]  # noqa: E731
+    du = _straighter_side(col(1) - p, col(2) - col(1), p - col(-1), col(-1) - col(-2))
+    # rows: steps past a pole don't exist; each missing step outweighs any real bend
+    i = torch.arange(H, device=p.device, dtype=p.dtype)[:, None]
+    missing_down = (i >= H - 2).to(p.dtype) + (i >= H - 1).to(p.dtype)
+    missing_up = (i <= 1).to(p.dtype) + (i <= 0).to(p.dtype)
+    dv = _straighter_side(row(1) - p, row(2) - row(1), p - row(-1), row(-1) - row(-2),
+                          missing_down * 1e30, missing_up * 1e30)
     n = torch.cross(dv, du, dim=-3)
     n = F.normalize(n, dim=-3, eps=1e-12)
     # face the camera: the normal points against the viewing ray
     flip = (n * p).sum(-3, keepdim=True) > 0
     return torch.where(flip, -n, n)
+
+
+def _straighter_side(a1: Tensor, a2: Tensor, b1: Tensor, b2: Tensor, penalty_a: Tensor | float = 0.0,
+                     penalty_b: Tensor | float = 0.0) -> Tensor:
+    """The step a1 (followed by a2) or b1 (followed by b2) whose continuation bends least."""
+    cost_a = _norm(a2 - a1) / (_norm(a1) + 1e-12) + penalty_a
+    cost_b = _norm(b2 - b1) / (_norm(b1) + 1e-12) + penalty_b
+    return torch.where(cost_a <= cost_b, a1, b1)
 
 
 def _norm(x: Tensor) -> Tensor:
@@ -124,6 +136,27 @@ def _norm(x: Tensor) -> Tensor:
 
 # ---------------------------------------------------------------------------------------------
 # sampling an equirect image at continuous coordinates
+
+
+def bilinear_taps(u: Tensor, v: Tensor, h: int, w: int) -> tuple[Tensor, Tensor]:
+    """The four texels and weights of a bilinear look-up in an ``h x w`` equirect image.
+
+    ``u``/``v`` are continuous pixel coordinates of any shape ``S``; returns flat row-major texel
+    indices (long) and weights, each ``[*S, 4]``, ordered (y0,x0), (y0,x1), (y1,x0), (y1,x1).
+    Wraps in longitude, clamps at the poles; the weights are differentiable in ``u``/``v``.
+    """
+    x = u - 0.5
+    y = (v - 0.5).clamp(0, h - 1)
+    x0 = torch.floor(x)
+    y0 = torch.floor(y).clamp(max=max(h - 2, 0))
+    fx, fy = x - x0, y - y0
+    x0 = torch.remainder(x0.long(), w)
+    x1 = torch.remainder(x0 + 1, w)
+    y0 = y0.long()
+    y1 = (y0 + 1).clamp(max=h - 1)
+    idx = torch.stack((y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1), dim=-1)
+    wgt = torch.stack(((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy), dim=-1)
+    return idx, wgt
 
 
 def sample_bilinear(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
@@ -135,25 +168,15 @@ def sample_bilinear(img: Tensor, u: Tensor, v: Tensor) -> Tensor:
     h, w = img.shape[-2:]
     nb = img.dim() - 3
     S = u.shape[nb:]
-    x = u - 0.5
-    y = (v - 0.5).clamp(0, h - 1)
-    x0 = torch.floor(x)
-    y0 = torch.floor(y).clamp(max=max(h - 2, 0))
-    fx, fy = x - x0, y - y0
-    x0 = torch.remainder(x0.long(), w)
-    x1 = torch.remainder(x0 + 1, w)
-    y0 = y0.long()
-    y1 = (y0 + 1).clamp(max=h - 1)
+    idx, wgt = bilinear_taps(u, v, h, w)
     flat = img.flatten(-2)  # [*B, C, h*w]
     C = flat.shape[-2]
 
-    def take(idx: Tensor) -> Tensor:
-        idx = idx.reshape(*idx.shape[:nb], 1, -1).expand(*flat.shape[:-1], -1)
-        return torch.gather(flat, -1, idx).reshape(*flat.shape[:-1], *S)
+    def take(k: int) -> Tensor:
+        i = idx[..., k].reshape(*idx.shape[:nb], 1, -1).expand(*flat.shape[:-1], -1)
+        return torch.gather(flat, -1, i).reshape(*flat.shape[:-1], *S) * wgt[..., k].unsqueeze(nb)
 
-    wgt = lambda a: a.unsqueeze(nb)  # noqa: E731  broadcast weights over the channel axis
-    out = (take(y0 * w + x0) * wgt((1 - fx) * (1 - fy)) + take(y0 * w + x1) * wgt(fx * (1 - fy))
-           + take(y1 * w + x0) * wgt((1 - fx) * fy) + take(y1 * w + x1) * wgt(fx * fy))
+    out = take(0) + take(1) + take(2) + take(3)
     assert out.shape[nb] == C
     return out
 
@@ -207,21 +230,28 @@ def yaw_shift_angle(shift: int, W: int) -> float:
 def resize_area(x: Tensor, H: int, W: int) -> Tensor:
     """Resample [..., C, h, w] to H x W.
 
-    Downsampling by integer factors is an exact box filter (area average); other sizes use bilinear
-    interpolation with longitude wrap (via padding), preceded by an area pre-filter when shrinking.
+    Downsampling by integer factors is an exact box filter weighted by pixel solid angle (pixels
+    near the poles cover less of the sphere), so the radiance integral sum(L * dOmega) is kept;
+    other sizes use bilinear interpolation with longitude wrap (via padding), preceded by the same
+    weighted box pre-filter when shrinking.
     """
     h, w = x.shape[-2:]
     if (h, w) == (H, W):
         return x
     lead = x.shape[:-3]
     y = x.reshape(-1, *x.shape[-3:])
+    area = solid_angles(h, w, x.device, x.dtype)
+
+    def area_pool(t: Tensor, k: tuple[int, int], ceil: bool = False) -> Tensor:
+        return F.avg_pool2d(t * area, k, ceil_mode=ceil) / F.avg_pool2d(area[None, None], k, ceil_mode=ceil)
+
     if h % H == 0 and w % W == 0:
-        y = F.avg_pool2d(y, (h // H, w // W))
+        y = area_pool(y, (h // H, w // W))
     else:
         if h > H or w > W:
             kh, kw = max(1, h // H), max(1, w // W)
             if kh > 1 or kw > 1:
-                y = F.avg_pool2d(y, (kh, kw), ceil_mode=True)
+                y = area_pool(y, (kh, kw), ceil=True)
         y = circular_pad(y, (1, 1, 0, 0))
         hh, ww = y.shape[-2:]
         # map target pixel centres to padded source coordinates
