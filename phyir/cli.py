@@ -10,7 +10,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
 import sys
+
+# Idle OpenMP threads sleep instead of spinning (set before torch loads; matters on busy small CPUs).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from phyir import __version__
 from phyir.errors import PhyIRError

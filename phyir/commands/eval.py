@@ -1,0 +1,110 @@
+"""``phyir eval``: the paper's metrics for predictions against ground truth, as JSON and Markdown."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "evaluate predictions (or the model on a synthetic split) with the paper's metrics"
+
+# column groups of the Markdown tables
+DEPTH = ["depth.mae", "depth.abs_rel", "depth.sq_rel", "depth.rmse", "depth.rmse_log", "depth.log10",
+         "depth.delta1", "depth.delta2", "depth.delta3"]
+NORMAL = ["normal.mean", "normal.median", "normal.pct_11.25", "normal.pct_22.5", "normal.pct_30"]
+MATERIAL = ["albedo_mse", "albedo_si_mse", "roughness_mse", "metallic_mse"]
+LIGHT = ["probe_log_mse", "relight_diffuse", "relight_matte_silver", "relight_mirror_silver"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("predictions", nargs="*", metavar="PRED",
+                        help="predicted scene files or folders (matched to --gt by file name)")
+    parser.add_argument("--gt", metavar="DIR", help="folder of ground-truth scene files")
+    parser.add_argument("--data", metavar="DIR", help="synthetic dataset: run the model on --split")
+    parser.add_argument("--split", default="test", choices=("train", "val", "test"))
+    parser.add_argument("--weights", metavar="FILE", help="weights for --data (default: the shipped model)")
+    parser.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
+    parser.add_argument("--limit", type=int, help="evaluate the first N scenes only")
+    parser.add_argument("--probes-per-scene", type=int, default=256,
+                        help="random ground-truth probe cells compared per scene (--data)")
+    parser.add_argument("--relight", type=int, default=16,
+                        help="probes per scene rendered for the relighting error (0: skip)")
+    parser.add_argument("--spp", type=int, default=64, help="samples per pixel of the relit spheres")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    parser.add_argument("--markdown", metavar="FILE", help="write the Markdown tables (also printed)")
+
+
+def markdown(results: dict[str, dict[str, float]]) -> str:
+    from phyir.metrics import markdown_table
+
+    parts = []
+    for title, keys in (("Depth", DEPTH), ("Normals (degrees, %)", NORMAL), ("Materials (MSE)", MATERIAL),
+                        ("Lighting (log-space MSE)", LIGHT)):
+        rows = {m: r for m, r in results.items() if any(k in r for k in keys)}
+        if rows:
+            heads = [k for k in keys if any(k in r for r in rows.values())]
+            parts.append(f"**{title}**\n\n" + markdown_table(rows, heads))
+    extra = {m: {k: v for k, v in r.items() if k == "predict_seconds"} for m, r in results.items()}
+    extra = {m: r for m, r in extra.items() if r}
+    if extra:
+        parts.append("**Time**\n\n" + markdown_table(extra, ["predict_seconds"], digits=3))
+    return "\n".join(parts)
+
+
+def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:
+    from phyir.errors import InputError
+
+    files: list[Path] = []
+    for s in preds:
+        p = Path(s)
+        files += sorted(q for q in p.glob("*.exr")) if p.is_dir() else [p]
+    if not files:
+        raise InputError(preds[0] if preds else None, "no prediction files")
+    pairs = []
+    for f in files:
+        g = gt_dir / f.name
+        if not g.is_file():
+            raise InputError(g, f"no ground truth for prediction {f}")
+        pairs.append((f, g))
+    return pairs
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from phyir.errors import PhyIRError
+    from phyir.io import atomic_write, load_scene
+
+    if bool(args.data) == bool(args.predictions):
+        raise PhyIRError("give either prediction files with --gt, or --data (run the model)")
+    if args.data:
+        from phyir.evaluation import evaluate_model
+
+        results = evaluate_model(args.data, args.split, weights=args.weights, device=args.device,
+                                 limit=args.limit, probes_per_scene=args.probes_per_scene,
+                                 relight=args.relight, spp=args.spp, seed=args.seed,
+                                 log=lambda s: print(s, file=sys.stderr, flush=True))
+    else:
+        if not args.gt:
+            raise PhyIRError("prediction files need --gt DIR (the ground-truth scenes)")
+        from phyir.evaluation import evaluate_pair
+        from phyir.metrics import MetricMeter
+
+        meter = MetricMeter()
+        for f, g in _pairs(args.predictions, Path(args.gt)):
+            pred, gt = load_scene(f), load_scene(g)
+            if pred.size != gt.size:
+                raise PhyIRError(f"{f}: size {pred.size[0]}x{pred.size[1]} differs from the ground "
+                                 f"truth's {gt.size[0]}x{gt.size[1]}")
+            meter.add(evaluate_pair(pred, gt, relight=args.relight, spp=args.spp))
+        results = {"predictions": meter.result()}
+    md = markdown(results)
+    print(md)
+    if args.json:
+        with atomic_write(args.json) as tmp:
+            Path(tmp).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    if args.markdown:
+        with atomic_write(args.markdown) as tmp:
+            Path(tmp).write_text(md)
+    return 0

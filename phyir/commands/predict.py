@@ -1,0 +1,122 @@
+"""``phyir predict INPUT... -o OUT``: panoramas to complete scene files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "predict depth, normals, materials and light probes of panoramas (writes scene .exr files)"
+
+IMAGE_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="INPUT",
+                        help="panorama or scene files (OpenEXR, .hdr, PNG, JPEG) or folders of them")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="output .exr file (one input) or folder (created; <name>.exr per input)")
+    parser.add_argument("--weights", metavar="FILE", help="weights file (default: the shipped model)")
+    parser.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
+    parser.add_argument("--outputs", metavar="LIST",
+                        help="comma-separated subset of depth,normal,albedo,roughness,metallic,probes "
+                             "(default: all); layers the input already has are kept, not recomputed")
+    parser.add_argument("--lighting", choices=("projection", "lnet"), default=None,
+                        help="probes re-read from the panorama where the camera saw, LNet elsewhere "
+                             "(projection, default), or LNet only")
+    parser.add_argument("--net-size", metavar="HxW", help="network resolution (default: the weights')")
+    parser.add_argument("--ldr", action="store_true", help="treat inputs as LDR (no exposure normalisation)")
+    parser.add_argument("--half", action="store_true", help="write float16 EXR channels")
+    parser.add_argument("--skip-existing", action="store_true", help="leave outputs that already exist")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no per-file lines")
+
+
+def collect_inputs(inputs: list[str]) -> list[Path]:
+    """Files as given; folders expanded to their image files (sorted, not recursive)."""
+    from phyir.errors import InputError
+
+    files: list[Path] = []
+    for s in inputs:
+        p = Path(s)
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise InputError(p, "folder holds no .exr/.hdr/.png/.jpg files")
+            files += found
+        elif p.exists():
+            files.append(p)
+        else:
+            raise InputError(p, "no such file or folder")
+    return files
+
+
+def output_paths(files: list[Path], output: str) -> list[Path]:
+    from phyir.errors import PhyIRError
+
+    out = Path(output)
+    if out.suffix.lower() == ".exr" and not out.is_dir():
+        if len(files) != 1:
+            raise PhyIRError(f"{out}: {len(files)} inputs need an output folder, not a .exr file")
+        return [out]
+    names = [f.stem + ".exr" for f in files]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise PhyIRError(f"inputs would overwrite each other in {out}: {', '.join(sorted(dup))}")
+    return [out / n for n in names]
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    import torch
+    from tqdm import tqdm
+
+    from phyir.errors import PhyIRError
+    from phyir.inference import OUTPUTS, predict
+    from phyir.io import save_scene
+
+    files = collect_inputs(args.inputs)
+    outs = output_paths(files, args.output)
+    outputs = None
+    if args.outputs:
+        outputs = [s.strip() for s in args.outputs.split(",") if s.strip()]
+        bad = [s for s in outputs if s not in OUTPUTS]
+        if bad:
+            raise PhyIRError(f"--outputs: unknown {', '.join(bad)} (choose from {', '.join(OUTPUTS)})")
+    net_size = None
+    if args.net_size:
+        from phyir.synth.dataset import parse_size
+
+        net_size = parse_size(args.net_size, "--net-size")
+        if net_size[0] % 32 or net_size[1] != 2 * net_size[0]:
+            raise PhyIRError(f"--net-size: need H a multiple of 32 and W = 2H, got {args.net_size}")
+    device = torch.device(args.device) if args.device else \
+        torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise PhyIRError(f"--device {args.device}: CUDA is not available")
+    status = 0
+    bar = tqdm(total=len(files), unit="pano", disable=len(files) < 2 or args.quiet, file=sys.stderr)
+    for src, dst in zip(files, outs):
+        if args.skip_existing and dst.exists():
+            bar.update(1)
+            continue
+        try:
+            # the model is loaded (once, cached) only if some layer has to be computed
+            scene = predict(src, weights=args.weights, device=device, outputs=outputs,
+                            lighting=args.lighting, net_size=net_size, hdr=False if args.ldr else None)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            save_scene(scene, dst, half=args.half)
+        except PhyIRError as e:  # report and go on with the other inputs
+            bar.write(f"phyir predict: error: {e}")
+            status = 2
+            bar.update(1)
+            continue
+        if not args.quiet:
+            secs = json.loads(scene.meta["predict.seconds"])
+            H, W = scene.size
+            parts = ", ".join(f"{k} {v:.2f}" for k, v in secs.items() if k != "total" and v >= 0.01)
+            bar.write(f"{src} -> {dst} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
+                      f"computed: {scene.meta['predict.computed'] or 'nothing'})")
+        bar.update(1)
+    bar.close()
+    return status

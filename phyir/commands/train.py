@@ -1,0 +1,70 @@
+"""``phyir train``: one stage of the four-stage PhyIR training (docs/training.md)."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "train GMNet / LNet / GSNet in the stages of the paper (resumable, multi-GPU via torchrun)"
+
+
+def _size(text: str) -> tuple[int, int] | str:
+    if text.lower() == "native":
+        return "native"
+    try:
+        H, W = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HxW, e.g. 128x256, got {text!r}") from None
+    return H, W
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="JSON or TOML file of training options (flags below override it)")
+    p.add_argument("--data", help="dataset folder written by `phyir synth` (scene files + manifest)")
+    p.add_argument("--stage", choices=("gm", "light", "joint", "gs"), help="training stage (default gm)")
+    p.add_argument("--out", help="run folder; each stage writes <out>/<stage>/ (default runs/phyir)")
+    p.add_argument("--model", choices=("lite", "full"), help="architecture for a fresh start (default lite)")
+    p.add_argument("--init", help="weights to start from (default: the previous stage's export; "
+                                  "'scratch' for random)")
+    p.add_argument("--epochs", type=int, help="override the stage's epoch count")
+    p.add_argument("--lr", type=float, help="override the stage's learning rate")
+    p.add_argument("--batch-size", type=int, help="override the stage's global batch size")
+    p.add_argument("--size", type=_size, help="training resolution HxW (default 128x256; 'native')")
+    p.add_argument("--probe-grid", type=_size, help="merge ground-truth probes to this HpxWp grid "
+                                                    "(default 16x32; 'native' keeps the files' grid)")
+    p.add_argument("--schedule", choices=("constant", "cosine"))
+    p.add_argument("--seed", type=int)
+    p.add_argument("--workers", type=int, help="data-loading worker processes per training process")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--no-amp", dest="amp", action="store_const", const=False, help="disable mixed precision")
+    p.add_argument("--no-augment", dest="augment", action="store_const", const=False)
+    p.add_argument("--no-val", dest="val", action="store_const", const=False)
+    p.add_argument("--max-minutes", type=float, help="stop with a checkpoint after this many minutes")
+    p.add_argument("--max-steps", type=int, help="stop with a checkpoint at this global step")
+    p.add_argument("--ckpt-every", type=int, help="checkpoint every N steps (default 200)")
+    p.add_argument("--no-cache", dest="cache", action="store_const", const=False,
+                   help="don't keep resampled scenes in <out>/cache/")
+    p.add_argument("--limit-train", type=int, help="use only the first N training scenes")
+    p.add_argument("--limit-val", type=int, help="use only the first N validation scenes")
+    p.add_argument("--no-progress", dest="progress", action="store_const", const=False)
+
+
+def options(args: argparse.Namespace) -> dict:
+    """Training options: the ``--config`` file's, overridden by the flags given."""
+    from phyir.train import load_config_file
+
+    opts = load_config_file(args.config) if args.config else {}
+    keys = ("data", "stage", "out", "model", "init", "epochs", "lr", "batch_size", "size", "probe_grid",
+            "schedule", "seed", "workers", "device", "amp", "augment", "val", "max_minutes", "max_steps",
+            "ckpt_every", "cache", "limit_train", "limit_val", "progress")
+    for k in keys:
+        v = getattr(args, k, None)
+        if v is not None:
+            opts[k] = None if v == "native" else v
+    return opts
+
+
+def run(args: argparse.Namespace) -> int:
+    from phyir.train import TrainConfig, train
+
+    result = train(TrainConfig.from_dict(options(args)))
+    return 0 if result["status"] in ("done", "stopped") else 1

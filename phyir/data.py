@@ -1,0 +1,275 @@
+"""Training data: a folder of scene files with a split manifest, input normalisation, augmentation.
+
+Input handling (the same at training and inference time):
+- LDR photographs are linearised by the loader (sRGB decode, :mod:`phyir.ldr`).
+- Every input is **exposure-normalised**: multiplied by ``s = KEY / median luminance`` so that its
+  median luminance is ``KEY``; ground-truth probes (and the re-rendering) live in the same units.
+  :meth:`phyir.nets.PhyIRModel.predict` divides the predicted probes by ``s``, so they come back in
+  the input's own radiometric units.
+
+Augmentation (training split only; every random draw comes from a generator seeded by
+(seed, epoch, index), so a sample is the same in every process and after a resume):
+- exposure jitter: image and probes times 2^U(-a, a) (matters through the tone mapping below),
+- HDR -> LDR with probability ``p_ldr``: ACES filmic curve, sRGB gamma, 8-bit quantisation, then
+  the loader's sRGB decode, so the network also sees saturated, compressed photographs,
+- yaw rotation by a random circular shift of whole columns (:func:`phyir.transforms.rotate_yaw`:
+  normals and probes rotated with it),
+- left-right mirror with probability 0.5 (:func:`phyir.transforms.mirror_lr`: x negated).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from phyir.errors import InputError
+from phyir.pano import resize_area
+from phyir.scene import PanoScene
+
+KEY = 0.25  # normalised median luminance
+SCALE_RANGE = (1e-6, 1e6)
+LUMA = (0.2126, 0.7152, 0.0722)
+MANIFEST_NAMES = ("manifest.json", "split.json", "splits.json")
+SPLITS = ("train", "val", "test")
+
+
+def luminance(image: Tensor) -> Tensor:
+    w = torch.tensor(LUMA, dtype=image.dtype, device=image.device).view(3, 1, 1)
+    return (image * w).sum(-3)
+
+
+def exposure_scale(image: Tensor) -> Tensor:
+    """Per-image factor bringing the median luminance to ``KEY``: [B,3,H,W] -> [B] (or [3,H,W] -> []).
+
+    The median ignores lamps and windows (a few bright pixels) and dark corners alike.  An image whose
+    median is zero (mostly black) falls back to its mean; an all-black image gets scale 1.
+    """
+    L = luminance(torch.nan_to_num(image.float(), nan=0.0, posinf=0.0).clamp(min=0)).flatten(-2)
+    med = L.median(dim=-1).values
+    stat = torch.where(med > 0, med, L.mean(-1))
+    scale = torch.where(stat > 0, KEY / stat.clamp(min=1e-30), torch.ones_like(stat))
+    return scale.clamp(*SCALE_RANGE)
+
+
+def normalize_scene(scene: PanoScene) -> PanoScene:
+    """Scale image and probes by :func:`exposure_scale`; the factor is recorded in ``meta``."""
+    s = float(exposure_scale(scene.image))
+    out = scene.replace(image=scene.image * s, probes=None if scene.probes is None else scene.probes * s,
+                        meta={**scene.meta, "exposure_scale": f"{s:.9g}"})
+    return out
+
+
+def aces(x: Tensor) -> Tensor:
+    """Narkowicz's fit of the ACES filmic tone curve, [0, inf) -> [0, 1)."""
+    return ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0, 1)
+
+
+def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
+    """What a camera + the LDR loader would give: ACES, sRGB gamma, 8 bits, sRGB decode to linear."""
+    from phyir.ldr import linear_to_srgb, srgb_to_linear
+
+    enc = linear_to_srgb(aces(image * exposure).numpy())
+    return torch.from_numpy(srgb_to_linear(np.round(enc * 255.0) / 255.0))
+
+
+@dataclass(frozen=True)
+class Augment:
+    exposure_stops: float = 1.0  # jitter by 2^U(-a, a)
+    p_ldr: float = 0.3
+    ldr_exposure: tuple[float, float] = (0.5, 4.0)  # camera exposure before tone mapping, log-uniform
+    rotate: bool = True
+    mirror: bool = True
+
+
+def resize_scene(scene: PanoScene, H: int, W: int, grid: tuple[int, int] | None = None) -> PanoScene:
+    """Area-resample the per-pixel layers to H x W (normals renormalised, masks re-thresholded) and,
+    if ``grid`` is given, the probe grid to ``grid`` (neighbouring probes averaged: an approximation
+    of the probe at the merged block's centre)."""
+    out = scene.map(lambda t: t)  # copy the container
+    if scene.size != (H, W):
+        for name, t in scene.layers():
+            if name.startswith("mask."):
+                out.masks[name[5:]] = (resize_area(t, H, W) > 0.5).to(t.dtype)
+            else:
+                setattr(out, name, resize_area(t, H, W))
+        if out.normal is not None:
+            out.normal = F.normalize(out.normal, dim=-3, eps=1e-6)
+    if grid is not None and scene.probes is not None and scene.probe_grid != tuple(grid):
+        p = scene.probes  # [..., Hp, Wp, 3, h, w] -> grid axes last for resize_area
+        q = resize_area(p.movedim((-5, -4), (-2, -1)).flatten(-5, -3), *grid)
+        out.probes = q.unflatten(-3, p.shape[-3:]).movedim((-2, -1), (-5, -4)).contiguous()
+    return out
+
+
+def _exact_shift_step(scene: PanoScene) -> int:
+    """Smallest column shift that moves the probe grid and the probe contents by whole texels (so
+    ground-truth probes are rolled, not resampled); 1 when there are no probes or it doesn't exist."""
+    W = scene.size[1]
+    if scene.probes is None:
+        return 1
+    Wp, w = scene.probes.shape[-4], scene.probes.shape[-1]
+    if W % Wp or W % w:
+        return 1
+    return math.lcm(W // Wp, W // w)
+
+
+def augment_scene(scene: PanoScene, aug: Augment, gen: torch.Generator) -> PanoScene:
+    """Random exposure, LDR simulation, yaw rotation and mirror of an unbatched scene."""
+    from phyir.transforms import mirror_lr, rotate_yaw
+
+    u = lambda: float(torch.rand((), generator=gen))  # noqa: E731
+    if aug.rotate:
+        step = _exact_shift_step(scene)
+        scene = rotate_yaw(scene, step * int(torch.randint(scene.size[1] // step, (), generator=gen)))
+    if aug.mirror and u() < 0.5:
+        scene = mirror_lr(scene)
+    gain = 2.0 ** (aug.exposure_stops * (2 * u() - 1))
+    scene = scene.replace(image=scene.image * gain,
+                          probes=None if scene.probes is None else scene.probes * gain)
+    if u() < aug.p_ldr:
+        lo, hi = aug.ldr_exposure
+        exposure = lo * (hi / lo) ** u() / max(float(luminance(scene.image).median()), 1e-8) * 0.18
+        scene = scene.replace(image=hdr_to_ldr_linear(scene.image, exposure) / exposure,
+                              meta={**scene.meta, "ldr": "1"})
+    return scene
+
+
+def read_manifest(root: str | os.PathLike) -> dict[str, list[str]]:
+    """{split: [scene file relative to root]} from the folder's manifest."""
+    root = Path(root)
+    for name in MANIFEST_NAMES:
+        p = root / name
+        if p.is_file():
+            break
+    else:
+        raise InputError(root, f"no split manifest ({' or '.join(MANIFEST_NAMES)}) in the dataset folder")
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise InputError(p, f"unreadable manifest ({e})") from e
+    splits = doc.get("splits", doc) if isinstance(doc, dict) else None
+    if not isinstance(splits, dict) or not any(k in splits for k in SPLITS):
+        raise InputError(p, "manifest has no train/val/test lists")
+    return {k: [str(f) for f in splits.get(k, [])] for k in SPLITS}
+
+
+class _ScenesBase(Dataset):
+    """Shared per-item processing: resize, seeded augmentation, exposure normalisation."""
+
+    size: tuple[int, int] | None = None
+    probe_grid: tuple[int, int] | None = None
+    augment: Augment | None = None
+    seed: int = 0
+    epoch: int = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        """Augmentations of epoch ``epoch`` (call before iterating, like DistributedSampler's)."""
+        self.epoch = epoch
+
+    def _prepare(self, scene: PanoScene, i: int) -> PanoScene:
+        if self.size is not None or self.probe_grid is not None:
+            scene = resize_scene(scene, *(self.size or scene.size), grid=self.probe_grid)
+        if self.augment is not None:
+            key = ((self.seed * 1_000_003 + self.epoch) * 1_000_033 + i) % 2**62
+            gen = torch.Generator().manual_seed(key)
+            scene = augment_scene(scene, self.augment, gen)
+        return normalize_scene(scene)
+
+
+class SceneDataset(_ScenesBase):
+    """Scenes of one split of a dataset folder, normalised (and augmented when ``augment`` is set).
+
+    ``size`` (H, W) resamples every scene (e.g. 128x256 training from 256x512 files), ``probe_grid``
+    (Hp, Wp) merges probes into a coarser grid.  ``cache_dir`` keeps each resampled scene there as
+    float16 safetensors (the scene files are float16 already), read instead of the scene file from
+    the second epoch on.  Items are unbatched :class:`PanoScene` s; batch them with :func:`collate`.
+    """
+
+    def __init__(self, root: str | os.PathLike, split: str = "train", *, size: tuple[int, int] | None = None,
+                 probe_grid: tuple[int, int] | None = None, augment: Augment | None = None, seed: int = 0,
+                 limit: int | None = None, cache_dir: str | os.PathLike | None = None):
+        self.root = Path(root)
+        files = read_manifest(self.root)[split]
+        if limit is not None:
+            files = files[:limit]
+        if not files:
+            raise InputError(self.root, f"split {split!r} of the manifest is empty")
+        self.files = [self.root / f for f in files]
+        self.split, self.size, self.augment, self.seed = split, size, augment, seed
+        self.probe_grid = probe_grid
+
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __getitem__(self, i: int) -> PanoScene:
+        return self._prepare(self._load(i), i)
+
+    def _load(self, i: int) -> PanoScene:
+        """The scene resampled to ``size``/``probe_grid`` (from the cache when there is one: decoding
+        a 256x512 scene file with its probes costs ~0.45 s of CPU, the cached copy ~5 ms)."""
+        from phyir.io import load_scene
+
+        if self.cache_dir is None:
+            return load_scene(self.files[i])
+        path = self.cache_dir / (Path(self.files[i]).stem + ".safetensors")
+        if path.is_file():
+            return _read_cached(path)
+        scene = load_scene(self.files[i])
+        scene = resize_scene(scene, *(self.size or scene.size), grid=self.probe_grid)
+        _write_cached(path, scene)
+        return _read_cached(path)  # the same float16 values in the first epoch as in later ones
+
+
+class TensorSceneDataset(_ScenesBase):
+    """In-memory scenes (tests, tiny sets) with the same processing as :class:`SceneDataset`."""
+
+    def __init__(self, scenes: list[PanoScene], *, size: tuple[int, int] | None = None,
+                 probe_grid: tuple[int, int] | None = None, augment: Augment | None = None, seed: int = 0):
+        self.scenes, self.size, self.augment, self.seed = scenes, size, augment, seed
+        self.probe_grid = probe_grid
+
+    def __len__(self) -> int:
+        return len(self.scenes)
+
+    def __getitem__(self, i: int) -> PanoScene:
+        return self._prepare(self.scenes[i], i)
+
+
+def _write_cached(path: Path, scene: PanoScene) -> None:
+    from safetensors.torch import save
+
+    from phyir.io import atomic_write
+
+    tensors = {name: t.half().contiguous() for name, t in scene.layers()}
+    if scene.probes is not None:
+        tensors["probes"] = scene.probes.half().contiguous()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as tmp:
+        Path(tmp).write_bytes(save(tensors, metadata={k: str(v) for k, v in scene.meta.items()}))
+
+
+def _read_cached(path: Path) -> PanoScene:
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as f:
+        t = {k: f.get_tensor(k).float() for k in f.keys()}
+        meta = dict(f.metadata() or {})
+    masks = {k[5:]: t.pop(k) for k in list(t) if k.startswith("mask.")}
+    if "normal" in t:
+        t["normal"] = F.normalize(t["normal"], dim=-3, eps=1e-6)
+    return PanoScene(**t, masks=masks, meta=meta)
+
+
+def collate(scenes: list[PanoScene]) -> PanoScene:
+    return PanoScene.stack(scenes)
