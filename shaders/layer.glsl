@@ -1,0 +1,27 @@
+// Look-up of the selected layer at the panorama coordinates seen by this fragment.
+// NEAREST (compile time): 1 = nearest-neighbour look-up (zoomed in), 0 = bilinear.
+#include "pano.glsl"
+#include "view.glsl"
+#ifndef NEAREST
+#define NEAREST 0
+#endif
+
+uniform sampler2D layer;      // wraps in s (longitude), clamps in t (poles)
+uniform vec2 pano_size;       // (W, H) the layer is laid over (the probe atlas is stretched onto it)
+
+// rgb = the layer's linear value, a = 1 where the view shows the panorama
+vec4 layer_value() {
+    bool inside;
+    vec2 uv = view_uv(pano_size, inside);
+    if (!inside) return vec4(0.0);
+    vec2 st = uv / pano_size;
+#if NEAREST
+    ivec2 ts = textureSize(layer, 0);
+    ivec2 ij = ivec2(floor(st * vec2(ts)));
+    ij.x = ((ij.x % ts.x) + ts.x) % ts.x;
+    ij.y = clamp(ij.y, 0, ts.y - 1);
+    return vec4(texelFetch(layer, ij, 0).rgb, 1.0);
+#else
+    return vec4(texture(layer, st).rgb, 1.0);
+#endif
+}

@@ -1,0 +1,328 @@
+"""The scene renderer: a short chain of GL passes drawing one layer of a panorama into a view.
+
+1. layer pass   -> ``hdr``: the layer's linear values resampled into view pixels (RGBA32F, alpha =
+   panorama coverage, with a depth buffer);
+2. linear passes (``Renderer.linear_passes``): hooks drawing onto ``hdr`` in linear values with the
+   same camera, e.g. inserted objects (issue 8);
+3. display pass -> target: exposure/offset and tone map, or colour map for scalar layers;
+4. overlay passes (``Renderer.overlay_passes``): probe markers and the like, in display colours.
+
+Everything runs on the thread that owns the GL context.  The renderer knows nothing of imgui or
+GLFW, so it runs on a standalone EGL context as well as in the window.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from viewer import glsl
+from viewer.view import EquirectView, PerspectiveView, View
+
+KINDS = {"hdr": 0, "colour": 1, "normal": 2, "scalar": 3}
+TONEMAPS = ("srgb", "aces", "false")
+COLORMAPS = ("viridis", "magma", "inferno", "turbo", "gray")
+FALSE_COLOUR_MAP = "turbo"
+MAX_MARKERS = 32  # shaders/markers.frag
+
+
+@dataclass
+class Display:
+    """How linear values become display colours."""
+
+    kind: str = "hdr"                       # one of KINDS
+    tonemap: str = "srgb"                   # hdr: one of TONEMAPS
+    exposure: float = 0.0                   # EV
+    offset: float = 0.0                     # added after exposure (hdr)
+    colormap: str = "viridis"               # scalar layers
+    range: tuple[float, float] = (0.0, 1.0)  # scalar: values mapped to [0, 1] of the colour map
+    false_range: tuple[float, float] = (-8.0, 8.0)  # false colour: log2 luminance range
+
+
+@dataclass
+class Marker:
+    x: float  # framebuffer pixels from the view's top-left corner
+    y: float
+    colour: tuple[float, float, float]
+    label: str = ""
+
+
+@dataclass
+class Frame:
+    """One view of one layer: everything a pass needs to draw."""
+
+    texture: moderngl.Texture
+    pano_size: tuple[int, int]              # (H, W) the layer is laid over
+    view: View
+    display: Display
+    nearest: bool = False
+    markers: Sequence[Marker] = ()
+    background: tuple[float, float, float] = (0.12, 0.12, 0.13)
+    # filled in by Renderer.render
+    rect: tuple[int, int, int, int] = (0, 0, 0, 0)  # view rect in the target, px from top-left
+    # for linear/overlay passes: "layers" (name -> texture of the shown scene), "scene" (PanoScene),
+    # "marker_radius"; passes may add their own keys
+    extras: dict = field(default_factory=dict)
+
+
+Pass = Callable[["Renderer", Frame], None]
+
+
+def colormap_lut(name: str, n: int = 256) -> np.ndarray:
+    """``n`` x 3 float32 RGB entries of a matplotlib colour map ("gray" is the identity ramp)."""
+    from matplotlib import colormaps
+
+    return colormaps[name].resampled(n)(np.linspace(0, 1, n))[:, :3].astype(np.float32)
+
+
+class Renderer:
+    def __init__(self, ctx: moderngl.Context):
+        self.ctx = ctx
+        self._programs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self._cache: moderngl.Framebuffer | None = None  # the last view drawn with a cache key
+        self._cache_key: tuple | None = None
+        self.cache_misses = 0
+        self._luts: dict[str, moderngl.Texture] = {}
+        self._hdr: moderngl.Framebuffer | None = None
+        self.linear_passes: list[Pass] = []
+        self.overlay_passes: list[Pass] = [draw_markers]
+
+    # -- resources ---------------------------------------------------------------------------
+    def texture(self, array: np.ndarray, old: moderngl.Texture | None = None) -> moderngl.Texture:
+        """An equirect float texture from an H x W x C array (C = 1 or 3); reuses ``old`` when the
+        shape matches.  Wraps in longitude, clamps at the poles, bilinear."""
+        a = np.ascontiguousarray(array, dtype=np.float32)
+        if a.ndim == 2:
+            a = a[..., None]
+        h, w, c = a.shape
+        if old is not None and old.size == (w, h) and old.components == c:
+            old.write(a)
+            return old
+        if old is not None:
+            old.release()
+        tex = self.ctx.texture((w, h), c, a, dtype="f4")
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        tex.repeat_x, tex.repeat_y = True, False
+        return tex
+
+    def program(self, frag: str, **defines: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """A full-screen program of ``frag`` compiled with ``defines`` (cached), and its VAO."""
+        key = (frag, *sorted(defines.items()))
+        if key not in self._programs:
+            prog = glsl.program(self.ctx, "fullscreen.vert", frag, defines)
+            self._programs[key] = prog, self.ctx.vertex_array(prog, [])
+        return self._programs[key]
+
+    def warm_up(self, target: moderngl.Framebuffer | None = None) -> None:
+        """Load the colour maps (imports matplotlib) and compile the common program variants now
+        (drawing each once: software GL compiles a shader at its first draw, per target format),
+        so the first frames of a file don't stall on them.  ``target``: the framebuffer frames
+        will go to (a corner of it is drawn over)."""
+        for name in (*COLORMAPS, FALSE_COLOUR_MAP):
+            self.lut(name)
+        tex = self.texture(np.ones((2, 4, 3), np.float32))
+        fbo = self.ctx.simple_framebuffer((4, 4))
+        for kind in ("hdr", "scalar"):
+            for nearest in (False, True):
+                frame = Frame(texture=tex, pano_size=(2, 4), view=EquirectView(zoom=1.0),
+                              display=Display(kind=kind), nearest=nearest,
+                              markers=[Marker(1.0, 1.0, (1.0, 1.0, 1.0))])
+                self.render(fbo, (0, 0, 4, 4), frame)
+                self.render(target or fbo, (0, 0, 4, 4), frame, fb_size=(4, 4), cache_key=(kind, nearest))
+        self.ctx.finish()
+        self._release_cache()
+        tex.release()
+        fbo.release()
+
+    def lut(self, name: str) -> moderngl.Texture:
+        if name not in self._luts:
+            tex = self.ctx.texture((256, 1), 3, colormap_lut(name), dtype="f4")
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            tex.repeat_x = tex.repeat_y = False
+            self._luts[name] = tex
+        return self._luts[name]
+
+    def hdr_target(self, w: int, h: int) -> moderngl.Framebuffer:
+        """The linear-value framebuffer of pass 1 (RGBA32F + depth), resized on demand."""
+        if self._hdr is None or self._hdr.size != (w, h):
+            if self._hdr is not None:
+                for a in (*self._hdr.color_attachments, self._hdr.depth_attachment):
+                    a.release()
+                self._hdr.release()
+            colour = self.ctx.texture((w, h), 4, dtype="f4")
+            colour.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self._hdr = self.ctx.framebuffer([colour], self.ctx.depth_renderbuffer((w, h)))
+        return self._hdr
+
+    # -- drawing -----------------------------------------------------------------------------
+    def render(self, target: moderngl.Framebuffer, rect: tuple[int, int, int, int], frame: Frame,
+               fb_size: tuple[int, int] | None = None, cache_key: tuple | None = None,
+               stale_ok: bool = False) -> None:
+        """Draw ``frame`` into ``rect`` = (x, y, w, h) of ``target`` (pixels, y from the top);
+        ``fb_size``: the target's size when ``target.size`` can't be trusted (a window's default
+        framebuffer after a resize).
+
+        Without linear passes the layer look-up and the display transform run as one pass (half
+        the fill cost on software GL); with them, through the linear ``hdr`` framebuffer.
+        With a ``cache_key`` (anything hashable describing everything the picture depends on) the
+        view is drawn once into a cache and copied while the key stays the same: frames where only
+        the interface changes (hover, progress) then cost a copy instead of the passes.  With
+        ``stale_ok`` a cached picture of the right size is copied even if the key changed, or
+        nothing is drawn when there is none (the next call redraws): spreads an expensive frame
+        over two.
+        """
+        x, y, w, h = (int(round(r)) for r in rect)
+        if w <= 0 or h <= 0:
+            return
+        if cache_key is None:
+            self._draw(target, (x, y, w, h), frame, (fb_size or target.size)[1])
+            return
+        cache = self._cache
+        if stale_ok and (cache is None or cache.size != (w, h)):
+            return  # nothing to show yet: the view appears with the next call
+        if not stale_ok and (cache is None or cache.size != (w, h) or self._cache_key != cache_key):
+            if cache is None or cache.size != (w, h):
+                self._release_cache()
+                cache = self._cache = self.ctx.framebuffer([self.ctx.texture((w, h), 4)])
+            self._draw(cache, (0, 0, w, h), frame, h)
+            self._cache_key = cache_key
+            self.cache_misses += 1
+        fb_h = (fb_size or target.size)[1]
+        frame.rect = (x, y, w, h)
+        prog, vao = self.program("blit.frag")
+        target.use()
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.ctx.viewport = (x, fb_h - y - h, w, h)
+        cache.color_attachments[0].use(0)
+        prog["src"] = 0
+        prog["origin"] = (float(x), float(fb_h - y - h))
+        vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def _release_cache(self) -> None:
+        if self._cache is not None:
+            self._cache.color_attachments[0].release()
+            self._cache.release()
+        self._cache, self._cache_key = None, None
+
+    def _draw(self, target: moderngl.Framebuffer, rect: tuple[int, int, int, int], frame: Frame,
+              fb_h: int) -> None:
+        x, y, w, h = rect
+        ctx = self.ctx
+        frame.rect = (x, y, w, h)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        view_defs = {"VIEW_KIND": int(isinstance(frame.view, PerspectiveView)), "NEAREST": int(frame.nearest)}
+        d = frame.display
+        disp_defs = {"KIND": KINDS[d.kind], "TONEMAP": TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0}
+        if self.linear_passes:
+            hdr = self.hdr_target(w, h)
+            hdr.use()
+            hdr.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            prog, vao = self.program("layer.frag", **view_defs)
+            self._set_layer(prog, frame, (0, 0, w, h), h)
+            vao.render(moderngl.TRIANGLES, vertices=3)
+            for p in self.linear_passes:
+                p(self, frame)
+            ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+            prog, vao = self.program("display.frag", **disp_defs)
+            target.use()
+            ctx.viewport = (x, fb_h - y - h, w, h)
+            hdr.color_attachments[0].use(0)
+            _uniform(prog, "hdr", 0)
+            _uniform(prog, "hdr_origin", (float(x), float(fb_h - y - h)))
+        else:
+            prog, vao = self.program("view.frag", **view_defs, **disp_defs)
+            target.use()
+            ctx.viewport = (x, fb_h - y - h, w, h)
+            self._set_layer(prog, frame, (x, y, w, h), fb_h)
+        self._set_display(prog, frame)
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        for p in self.overlay_passes:
+            p(self, frame)
+
+    def _set_layer(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
+        self._set_view(prog, frame, rect, fb_height)
+        frame.texture.use(0)
+        _uniform(prog, "layer", 0)
+        H, W = frame.pano_size
+        _uniform(prog, "pano_size", (float(W), float(H)))
+
+    def _set_display(self, prog: moderngl.Program, frame: Frame) -> None:
+        d = frame.display
+        _uniform(prog, "exposure", float(d.exposure))
+        _uniform(prog, "offset", float(d.offset))
+        false = d.kind == "hdr" and d.tonemap == "false"
+        lo, hi = d.false_range if false else d.range
+        _uniform(prog, "range", (float(lo), float(hi) if hi != lo else float(lo) + 1e-6))
+        self.lut(FALSE_COLOUR_MAP if false else d.colormap).use(1)
+        _uniform(prog, "cmap", 1)
+        _uniform(prog, "background", tuple(float(c) for c in frame.background))
+
+    def _set_view(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
+        v = frame.view
+        _uniform(prog, "view_rect", tuple(float(r) for r in rect))
+        _uniform(prog, "fb_height", float(fb_height))
+        if isinstance(v, EquirectView):
+            _uniform(prog, "eq_center", tuple(float(c) for c in v.center))
+            _uniform(prog, "eq_zoom", float(v.zoom))
+        elif isinstance(v, PerspectiveView):
+            _uniform(prog, "persp", (float(np.radians(v.fov)), float(v.yaw), float(v.pitch)))
+        else:
+            raise TypeError(f"unknown view {v!r}")
+
+    def read(self, target: moderngl.Framebuffer, rect: tuple[int, int, int, int] | None = None,
+             components: int = 3) -> np.ndarray:
+        """uint8 pixels (rows from the top) of ``rect`` (x, y, w, h; y from the top) of ``target``."""
+        W, H = target.size
+        x, y, w, h = rect or (0, 0, W, H)
+        data = target.read(viewport=(x, H - y - h, w, h), components=components)
+        return np.frombuffer(data, np.uint8).reshape(h, w, components)[::-1].copy()
+
+    def read_linear(self) -> np.ndarray:
+        """The last frame's pass-1 values (h x w x 4 float32, rows from the top)."""
+        assert self._hdr is not None
+        w, h = self._hdr.size
+        data = self._hdr.read(components=4, dtype="f4")
+        return np.frombuffer(data, np.float32).reshape(h, w, 4)[::-1].copy()
+
+    def release(self) -> None:
+        self._release_cache()
+        for t in self._luts.values():
+            t.release()
+        self._luts.clear()
+        for prog, vao in self._programs.values():
+            vao.release()
+            prog.release()
+        self._programs.clear()
+
+
+def _uniform(prog: moderngl.Program, name: str, value) -> None:
+    """Set a uniform unless the compiler dropped it from this variant."""
+    if name in prog:
+        prog[name] = value
+
+
+def draw_markers(r: Renderer, frame: Frame) -> None:
+    """Rings around the pinned probes (overlay pass): one instanced quad per marker."""
+    ms = list(frame.markers)[:MAX_MARKERS]
+    if not ms:
+        return
+    if "markers" not in r._programs:
+        prog = glsl.program(r.ctx, "markers.vert", "markers.frag")
+        r._programs["markers"] = prog, r.ctx.vertex_array(prog, [])
+    prog, vao = r._programs["markers"]
+    pos = np.zeros((MAX_MARKERS, 2), np.float32)
+    col = np.zeros((MAX_MARKERS, 3), np.float32)
+    for k, m in enumerate(ms):
+        pos[k] = (m.x, m.y)
+        col[k] = m.colour
+    prog["marker_pos"].write(pos.tobytes())
+    prog["marker_colour"].write(col.tobytes())
+    prog["radius"] = float(frame.extras.get("marker_radius", 9.0))
+    prog["view_size"] = (float(frame.rect[2]), float(frame.rect[3]))
+    r.ctx.enable(moderngl.BLEND)
+    r.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+    vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=len(ms))
+    r.ctx.disable(moderngl.BLEND)

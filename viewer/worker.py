@@ -1,0 +1,266 @@
+"""Loading, inference and re-rendering off the GL thread.
+
+One job at a time runs in a daemon thread: load the file -> run the model for the layers the file
+lacks -> re-render.  Each step posts an :class:`Update` to a queue that the GL thread drains every
+frame (``Worker.poll``); ``wake`` (e.g. ``glfw.post_empty_event``) is called after each post so an
+idle window wakes up.  Starting a job cancels the running one: its ``cancel`` event is set (the model
+polls it) and its later updates are dropped.  torch runs with few threads so the UI thread keeps a
+core; the thread count is restored when the job ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import os
+import queue
+import sys
+import threading
+import time
+import traceback
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from phyir.errors import PhyIRError
+from phyir.scene import PanoScene
+from viewer.layers import PREDICTED, auto_ranges, rendered_arrays, scene_arrays
+
+
+@dataclass
+class Update:
+    job: int
+    kind: str       # loaded | progress | layers | gt | rendered | gt-rendered | note | error | done
+    payload: Any = None
+
+
+@dataclass
+class Loaded:
+    scene: PanoScene
+    arrays: dict[str, np.ndarray]
+    name: str
+    path: str | None
+    notes: list[str]
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)  # scalar layers' default ranges
+
+
+WORKER_NICE = 5  # niceness of the worker thread (a mild preference for the UI thread)
+SYNTH_SOURCE = "phyir synth"  # meta["source"] of phyir.synth's scenes: their layers are ground truth
+
+
+class Cancelled(Exception):
+    """Raised inside a job when it has been superseded."""
+
+
+def default_threads() -> int:
+    """torch threads for inference: all cores but one (the UI's), at least one."""
+    return max(1, (os.cpu_count() or 2) - 1)
+
+
+class Worker:
+    def __init__(self, wake: Callable[[], None] | None = None, predict: Callable | None = None,
+                 render: Callable | None = None, threads: int | None = None,
+                 predict_kwargs: dict | None = None):
+        self._wake = wake or (lambda: None)
+        self._predict = predict
+        self.predict_kwargs = dict(predict_kwargs or {})  # e.g. weights=..., device=...
+        self._render = render
+        self.threads = threads or default_threads()
+        self._queue: queue.Queue[Update] = queue.Queue()
+        self._job = 0
+        self._cancel = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []  # cancelled jobs may still finish a torch op
+        self._lock = threading.Lock()
+
+    # -- GL-thread side ------------------------------------------------------------------------
+    def start(self, source: str | os.PathLike | PanoScene, *, name: str | None = None,
+              compare: bool | None = None, run_model: bool = True) -> int:
+        """Start a job (cancelling the current one); returns its id.
+
+        ``source``: a file path or a PanoScene.  The model fills only the layers the source lacks;
+        with ``compare`` it predicts every layer and the source's own layers become ground truth
+        (``None``: only for complete synthetic scenes, ``meta["source"] == SYNTH_SOURCE``).
+        """
+        with self._lock:
+            self._cancel.set()
+            self._job += 1
+            self._cancel = threading.Event()
+            job, cancel = self._job, self._cancel
+        t = threading.Thread(target=self._run, args=(job, cancel, source, name, compare, run_model),
+                             name=f"phyir-view job {job}", daemon=True)
+        self._thread = t
+        self._threads = [th for th in self._threads if th.is_alive()] + [t]
+        t.start()
+        return job
+
+    def cancel(self) -> None:
+        with self._lock:
+            self._cancel.set()
+            self._job += 1
+
+    @property
+    def job(self) -> int:
+        return self._job
+
+    @property
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive() and not self._cancel.is_set()
+
+    def poll(self) -> list[Update]:
+        """Updates of the current job posted since the last poll (stale jobs' updates dropped)."""
+        out = []
+        while True:
+            try:
+                u = self._queue.get_nowait()
+            except queue.Empty:
+                return out
+            if u.job == self._job:
+                out.append(u)
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for every job thread (cancelled ones included) up to ``timeout`` seconds in all."""
+        end = None if timeout is None else time.monotonic() + timeout
+        for t in self._threads:
+            t.join(None if end is None else max(0.0, end - time.monotonic()))
+
+    # -- worker-thread side --------------------------------------------------------------------
+    def _post(self, job: int, kind: str, payload: Any = None) -> None:
+        self._queue.put(Update(job, kind, payload))
+        self._wake()
+
+    def _run(self, job: int, cancel: threading.Event, source, name, compare: bool | None,
+             run_model: bool) -> None:
+        old_threads = torch.get_num_threads()
+        torch.set_num_threads(self.threads)
+        _lower_priority()
+        post = lambda kind, payload=None: self._post(job, kind, payload)  # noqa: E731
+        stage = ["loading"]
+        try:
+            loaded = load(source, name)
+            post("loaded", loaded)
+            self._check(cancel)
+            scene = loaded.scene
+            predict = (self._predict or _library_predict()) if run_model else None
+            missing = [n for n in PREDICTED if getattr(scene, n) is None]
+            if compare is None:  # synthetic ground truth: predict everything and compare
+                compare = predict is not None and not missing and scene.meta.get("source") == SYNTH_SOURCE
+            if compare:
+                gt, missing = scene, list(PREDICTED)
+                scene = PanoScene(image=scene.image, meta=dict(scene.meta))
+                post("gt", (gt, loaded.arrays))
+                self._rerender(post, cancel, stage, "gt-rendered", gt)
+            if missing and run_model:
+                if predict is None:
+                    post("note", "no model available (phyir.predict is missing): showing the file's layers")
+                else:
+                    stage[0] = "running the model"
+                    post("progress", (0.0, f"running the model for {', '.join(missing)}"))
+                    t0 = time.perf_counter()
+                    pred = predict(scene, outputs=tuple(missing), progress=_progress(post, cancel),
+                                   cancel=cancel, **self.predict_kwargs)
+                    self._check(cancel)
+                    pred = pred[0] if pred.batched else pred
+                    scene = scene.replace(**{n: getattr(pred, n).detach().cpu().float() for n in missing
+                                             if getattr(pred, n) is not None})
+                    arrays = scene_arrays(scene, missing)
+                    post("layers", (scene, arrays, auto_ranges(arrays), time.perf_counter() - t0))
+            self._rerender(post, cancel, stage, "rendered", scene)
+            post("done")
+        except Cancelled:
+            pass
+        except PhyIRError as e:  # user-facing: the message names the file and the problem
+            if not cancel.is_set():
+                post("error", (stage[0], str(e)))
+        except Exception as e:  # noqa: BLE001 - a failing model must not take the viewer down
+            if not cancel.is_set():
+                traceback.print_exc()
+                post("error", (stage[0], f"{type(e).__name__}: {e}"))
+        finally:
+            torch.set_num_threads(old_threads)
+
+    def _rerender(self, post, cancel: threading.Event, stage: list[str], kind: str, scene: PanoScene) -> None:
+        """Post the re-rendered diffuse/specular/image and the error map, when the scene allows."""
+        render = self._render or _library_render()
+        if render is None or not scene.has(*PREDICTED):
+            return
+        stage[0] = "re-rendering"
+        post("progress", (None, "re-rendering diffuse and specular"))
+        t0 = time.perf_counter()
+        passes = render(scene)
+        self._check(cancel)
+        arrays = rendered_arrays(scene_arrays(scene, ("image",))["image"], passes)
+        post(kind, (arrays, time.perf_counter() - t0))
+
+    @staticmethod
+    def _check(cancel: threading.Event) -> None:
+        if cancel.is_set():
+            raise Cancelled
+
+
+def _lower_priority() -> None:
+    """Nice this thread (Linux: per thread) so the UI thread wins the CPU when both want it."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
+
+
+def load(source: str | os.PathLike | PanoScene, name: str | None = None) -> Loaded:
+    """Read a panorama or scene file (or take a PanoScene) and make its layer arrays."""
+    notes: list[str] = []
+    if isinstance(source, PanoScene):
+        scene, path = source, None
+        name = name or source.meta.get("name", "scene")
+    else:
+        from phyir import io
+
+        path = os.fspath(source)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", io.InputWarning)
+            scene = io.load_scene(path)
+        notes = [str(w.message) for w in caught if issubclass(w.category, io.InputWarning)]
+        name = name or Path(path).name
+    if scene.batched:
+        scene = scene[0]
+    scene = scene.detach().to("cpu", torch.float32)
+    arrays = scene_arrays(scene)
+    return Loaded(scene, arrays, name, path, notes, auto_ranges(arrays))
+
+
+def _progress(post, cancel: threading.Event) -> Callable:
+    """A progress callback accepting (fraction[, message]) in any order; raises when cancelled."""
+    def cb(*args, **kw):
+        frac = next((float(a) for a in (*args, *kw.values()) if isinstance(a, (int, float))), None)
+        text = next((a for a in (*args, *kw.values()) if isinstance(a, str)), None)
+        post("progress", (frac, text))
+        if cancel.is_set():
+            raise Cancelled
+    return cb
+
+
+def _library_predict() -> Callable | None:
+    """``phyir.predict``, or None while the library has no inference module."""
+    import phyir
+
+    try:
+        return phyir.predict
+    except AttributeError:
+        return None
+    except ModuleNotFoundError as e:  # phyir.predict is registered but its module is missing
+        if e.name and e.name.startswith("phyir"):
+            return None
+        raise
+
+
+def _library_render() -> Callable | None:
+    if importlib.util.find_spec("phyir.render") is None:
+        return None
+    from phyir.render import render_scene
+
+    # split-sum shading: fast and close to the Monte Carlo render (docs/rendering.md)
+    return lambda scene: render_scene(scene, method="prefiltered")
