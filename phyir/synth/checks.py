@@ -1,0 +1,189 @@
+"""Physical-consistency, noise and speed checks of the data generator.
+
+Run ``python -m phyir.synth.checks [--scenes 20] [--size 128x256] [--out docs/synth_checks.json]``.
+
+* consistency: the rendering layer (:func:`phyir.render.render_scene`) applied to a scene's
+  ground-truth layers and probes against its ground-truth image: relative L1
+  ``sum|render - gt| / sum gt`` over non-emissive pixels, per scene and averaged; also over
+  diffuse-dominated pixels (M < 0.5, R > 0.6) and glossy/metal pixels;
+* noise: the same room rendered with two sampler seeds: relative L1 between the two images
+  (non-emissive pixels) and between the two probe grids;
+* speed: seconds (wall and CPU) and peak resident memory of one scene at the given settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+
+import torch
+from torch import Tensor
+
+from phyir.scene import PanoScene
+from phyir.synth.dataset import generate_scene
+from phyir.synth.tracer import TraceSettings
+
+PROBE_PIXELS = 4  # one probe per 4x4 pixels, as in the default 256x512 / 64x128
+
+
+def rel_l1(a: Tensor, b: Tensor, mask: Tensor | None = None) -> float:
+    """``sum|a - b| / sum|b|`` (over ``mask`` if given, broadcast against the tensors)."""
+    diff, ref = (a - b).abs(), b.abs()
+    if mask is not None:
+        m = mask.to(diff.dtype).expand_as(diff)
+        diff, ref = diff * m, ref * m
+    return float(diff.sum() / ref.sum().clamp(min=1e-30))
+
+
+def consistency(scene: PanoScene, spp: int = 128) -> dict:
+    """Relative L1 of the rendering layer's re-render against the ground-truth image."""
+    from phyir.render import render_scene
+
+    out = render_scene(scene, spp=spp)["image"]
+    nonem = scene.masks["emission"] < 0.5
+    diffuse = nonem & (scene.metallic < 0.5) & (scene.roughness > 0.6)
+    glossy = nonem & ~diffuse
+    return {"all": rel_l1(out, scene.image, nonem), "diffuse": rel_l1(out, scene.image, diffuse),
+            "glossy": rel_l1(out, scene.image, glossy), "glossy_share": float(glossy.float().mean()),
+            "brightness_ratio": float((out * nonem).sum() / (scene.image * nonem).sum())}
+
+
+def noise(seed: int, index: int, settings: TraceSettings) -> dict:
+    """Relative L1 between two renders of one room with different sampler seeds."""
+    a = generate_scene(seed, index, settings, sampler_seed=1)
+    b = generate_scene(seed, index, settings, sampler_seed=2)
+    # compare in radiometric units: undo the (sample-dependent) exposure normalisation
+    ka, kb = float(a.meta["exposure"]), float(b.meta["exposure"])
+    nonem = a.masks["emission"] < 0.5
+    out = {"image": rel_l1(a.image / ka, b.image / kb, nonem)}
+    if a.probes is not None:
+        out["probes"] = rel_l1(a.probes / ka, b.probes / kb)
+    return out
+
+
+def check_folder(folder: str, count: int = 20, spp: int = 128) -> dict:
+    """Consistency over the first ``count`` scene files of a dataset folder."""
+    from pathlib import Path
+
+    from phyir.io import load_scene
+
+    per = []
+    for p in sorted(Path(folder).glob("scene_*.exr"))[:count]:
+        c = consistency(load_scene(p), spp)
+        c["file"] = p.name
+        per.append(c)
+        print(f"{p.name}: consistency {c['all']:.4f} (diffuse {c['diffuse']:.4f}, glossy {c['glossy']:.4f}) "
+              f"ratio {c['brightness_ratio']:.3f}", flush=True)
+    keys = ("all", "diffuse", "glossy", "brightness_ratio", "glossy_share")
+    return {"consistency_mean": {k: sum(p[k] for p in per) / len(per) for k in keys}, "consistency": per}
+
+
+def settings_for(size: tuple[int, int], spp: int = 16) -> TraceSettings:
+    H, W = size
+    return TraceSettings(size=size, probe_grid=(H // PROBE_PIXELS, W // PROBE_PIXELS), spp=spp)
+
+
+def run_checks(scenes: int = 20, size=(128, 256), seed: int = 1000, noise_scenes: int = 3,
+               spp: int = 16) -> dict:
+    st = settings_for(tuple(size), spp)
+    per = []
+    t0, c0 = time.perf_counter(), time.process_time()
+    for i in range(scenes):
+        s = generate_scene(seed, i, st)
+        c = consistency(s)
+        c["index"] = i
+        c["render_seconds"] = float(s.meta["render_seconds"])
+        per.append(c)
+        print(f"scene {i}: consistency {c['all']:.4f} (diffuse {c['diffuse']:.4f}, glossy {c['glossy']:.4f}) "
+              f"ratio {c['brightness_ratio']:.3f}", flush=True)
+    mean = {k: sum(p[k] for p in per) / len(per) for k in ("all", "diffuse", "glossy", "brightness_ratio")}
+    noi = []
+    for i in range(noise_scenes):
+        n = noise(seed, i, st)
+        n["index"] = i
+        noi.append(n)
+        print(f"scene {i}: noise {n}", flush=True)
+    return {"settings": {"size": list(size), "probe_grid": list(st.probe_grid),
+                         "probe_size": list(st.probe_size), "spp": st.spp, "seed": seed},
+            "consistency_mean": mean, "consistency": per,
+            "noise_mean": ({k: sum(n[k] for n in noi) / len(noi) for k in noi[0] if k != "index"}
+                           if noi else {}),
+            "noise": noi,
+            "wall_seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+            "threads": torch.get_num_threads()}
+
+
+def speed(size=(256, 512), probe_grid=(64, 128), probe_size=(16, 32), spp: int = 16, seed: int = 0,
+          index: int = 0, device=None) -> dict:
+    """Time and peak memory of one scene (fresh process recommended for the memory figure)."""
+    st = TraceSettings(size=tuple(size), probe_grid=None if probe_grid is None else tuple(probe_grid),
+                       probe_size=tuple(probe_size), spp=spp)
+    t0, c0 = time.perf_counter(), time.process_time()
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    s = generate_scene(seed, index, st, device)
+    out = {"size": list(size), "probe_grid": None if probe_grid is None else list(probe_grid),
+           "probe_size": list(probe_size), "spp": spp, "wall_seconds": time.perf_counter() - t0,
+           "cpu_seconds": time.process_time() - c0,
+           "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+           "threads": torch.get_num_threads(), "device": str(device or "cpu"),
+           "load_average": list(_loadavg())}
+    if device == "cuda":
+        out["peak_cuda_mb"] = torch.cuda.max_memory_allocated() / 2**20
+    out["room"] = s.meta["room"]
+    return out
+
+
+def _loadavg():
+    try:
+        import os
+
+        return os.getloadavg()
+    except OSError:
+        return ()
+
+
+def main(argv: list[str] | None = None) -> int:
+    from phyir.synth.dataset import parse_size
+
+    p = argparse.ArgumentParser(prog="python -m phyir.synth.checks", description=__doc__.splitlines()[0])
+    p.add_argument("--scenes", type=int, default=20)
+    p.add_argument("--noise-scenes", type=int, default=3)
+    p.add_argument("--size", default="128x256")
+    p.add_argument("--spp", type=int, default=16)
+    p.add_argument("--seed", type=int, default=1000)
+    p.add_argument("--speed", action="store_true",
+                   help="time one scene instead (use with --size, --probe-grid)")
+    p.add_argument("--probe-grid", default=None)
+    p.add_argument("--device", default=None)
+    p.add_argument("--dir", default=None, help="consistency of the scene files in this folder instead")
+    p.add_argument("--out", default=None, help="write the results as JSON here")
+    a = p.parse_args(argv)
+    size = parse_size(a.size, "--size")
+    if a.dir:
+        res = check_folder(a.dir, a.scenes)
+        text = json.dumps(res, indent=1)
+        print(json.dumps(res["consistency_mean"]))
+        if a.out:
+            with open(a.out, "w") as f:
+                f.write(text)
+        return 0
+    if a.speed:
+        grid = (size[0] // PROBE_PIXELS, size[1] // PROBE_PIXELS) if a.probe_grid is None else \
+            (None if a.probe_grid == "none" else parse_size(a.probe_grid, "--probe-grid"))
+        res = speed(size, grid, spp=a.spp, seed=a.seed, device=a.device)
+    else:
+        res = run_checks(a.scenes, size, a.seed, a.noise_scenes, a.spp)
+    text = json.dumps(res, indent=1)
+    keys = ("consistency_mean", "noise_mean", "wall_seconds")
+    print(text if a.speed else json.dumps({k: res[k] for k in keys}))
+    if a.out:
+        with open(a.out, "w") as f:
+            f.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

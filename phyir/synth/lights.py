@@ -1,0 +1,315 @@
+"""Light sources of the synthetic rooms: area emitters, window portals onto a sky, and the sun.
+
+* Area lights: emissive quads (ceiling panels, one-sided), spheres (bulbs, globes) and capped
+  cylinders (lamp shades) of constant radiance.
+* Portals: the window openings.  A ray leaving the room through one sees the exterior: a sky
+  gradient (zenith, horizon, ground), sampled by area over the window.
+* The sun: a disc of angular radius ``SUN_RADIUS`` that reaches the room only through portals.
+
+Next-event estimation picks one source per sample with probabilities proportional to
+power / distance^2 at the shading point (mixed with a uniform share so no source is starved) and
+samples it by area (quads, cylinders, portals), by the subtended cone (spheres) or by the sun's
+cone.  :meth:`Lights.pdf` gives the same densities for directions found by BSDF sampling (MIS).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from phyir.sampling import local_to_world
+from phyir.synth import geometry as G
+
+AREA, PORTAL, SUN = 0, 1, 2
+SUN_RADIUS = math.radians(2.0)  # angular radius: sun/sunlit-floor radiance ratio ~ 1e3-1e4
+UNIFORM_SHARE = 0.1  # part of the light-selection probability spread uniformly
+
+
+@dataclass
+class Sky:
+    """The exterior seen through windows (room or camera frame), linear RGB radiance."""
+
+    zenith: np.ndarray
+    horizon: np.ndarray
+    ground: np.ndarray
+    sun_dir: np.ndarray | None = None  # unit vector toward the sun
+    sun_radiance: np.ndarray | None = None
+
+    @staticmethod
+    def random(rng: np.random.Generator, sun: bool) -> Sky:
+        inten = float(rng.uniform(3, 12))
+        haze = float(rng.uniform(0, 1))
+        zen = np.array((0.35, 0.55, 1.0)) * (1 - haze) + np.array((0.8, 0.85, 0.95)) * haze
+        sky = Sky(zenith=zen * inten, horizon=np.array((1.0, 0.96, 0.92)) * 1.1 * inten,
+                  ground=np.array((0.45, 0.42, 0.36)) * float(rng.uniform(0.3, 0.8)) * inten)
+        if sun:
+            el = math.radians(float(rng.uniform(10, 60)))
+            az = float(rng.uniform(-math.pi, math.pi))
+            sky.sun_dir = np.array((math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)))
+            e_sun = float(rng.uniform(6, 20)) * inten  # irradiance at normal incidence
+            omega = 2 * math.pi * (1 - math.cos(SUN_RADIUS))
+            sky.sun_radiance = np.array((1.0, 0.95, 0.85)) * e_sun / omega
+        return sky
+
+    def rotated(self, R: np.ndarray) -> Sky:
+        return Sky(self.zenith, self.horizon, self.ground,
+                   None if self.sun_dir is None else R @ self.sun_dir, self.sun_radiance)
+
+
+class Lights:
+    """Tensors of all sources of one scene (see the module doc)."""
+
+    @staticmethod
+    def build(P: G.Prims, emit: list, sky: Sky | None, device=None) -> Lights:
+        """``emit``: [(global prim id, PrimSpec)] of area lights and portals."""
+        L = Lights()
+        rows = []
+        for pid, spec in emit:
+            rows.append((PORTAL if spec.portal else AREA, pid,
+                         (0.0, 0.0, 0.0) if spec.portal else tuple(spec.emit)))
+        has_sun = sky is not None and sky.sun_dir is not None and any(r[0] == PORTAL for r in rows)
+        if has_sun:
+            rows.append((SUN, -1, tuple(sky.sun_radiance)))
+        n = len(rows)
+        dev = P.device
+        L.kind = torch.tensor([r[0] for r in rows], dtype=torch.long, device=dev)
+        L.pid = torch.tensor([r[1] for r in rows], dtype=torch.long, device=dev)
+        L.radiance = torch.tensor([r[2] for r in rows], dtype=torch.float32, device=dev).reshape(n, 3)
+        L.gkind = torch.where(L.pid >= 0, P.kind[L.pid.clamp(min=0)], -1)
+        # geometry, one row per light (unused fields zero)
+        z3 = torch.zeros(n, 3, device=dev)
+        L.c, L.ex, L.ey, L.nq = z3.clone(), z3.clone(), z3.clone(), z3.clone()
+        L.h = torch.zeros(n, 2, device=dev)
+        L.r, L.hh, L.area = (torch.zeros(n, device=dev) for _ in range(3))
+        for li, (_, pid, _) in enumerate(rows):
+            if pid < 0:
+                continue
+            k = int(P.kind[pid])
+            i = pid - P.offsets[k]
+            if k == G.QUAD:
+                L.c[li], L.ex[li], L.ey[li], L.nq[li] = P.q_c[i], P.q_ex[i], P.q_ey[i], P.q_n[i]
+                L.h[li] = P.q_h[i]
+                L.area[li] = 4 * P.q_h[i].prod()
+            elif k == G.SPH:
+                L.c[li], L.r[li] = P.s_c[i], P.s_r[i]
+                L.area[li] = 4 * math.pi * P.s_r[i] ** 2
+            elif k == G.CYL:
+                L.c[li], L.r[li], L.hh[li] = P.c_c[i], P.c_r[i], P.c_hh[i]
+                L.area[li] = 2 * math.pi * P.c_r[i] * 2 * P.c_hh[i] + 2 * math.pi * P.c_r[i] ** 2
+            else:
+                raise ValueError("boxes cannot be emitters")
+        # sky
+        f = lambda a: torch.tensor(np.asarray(a, dtype=np.float32), device=dev)  # noqa: E731
+        if sky is None:
+            sky = Sky(np.zeros(3), np.zeros(3), np.zeros(3))
+        L.zenith, L.horizon, L.ground = f(sky.zenith), f(sky.horizon), f(sky.ground)
+        L.has_sun = has_sun
+        L.sun_dir = f(sky.sun_dir if has_sun else (0.0, 1.0, 0.0))
+        L.sun_cos = math.cos(SUN_RADIUS)
+        L.sun_omega = 2 * math.pi * (1 - L.sun_cos)
+        L.sun_index = n - 1 if has_sun else -1
+        # bounding spheres and powers for light selection
+        bound = torch.where(L.gkind == G.QUAD, L.h.norm(dim=1), torch.sqrt(L.r ** 2 + L.hh ** 2))
+        mean_rad = L.radiance.mean(1)
+        sky_mean = float((L.zenith + L.horizon).mean() / 2)
+        power = torch.where(L.kind == PORTAL, sky_mean * L.area * math.pi, mean_rad * L.area * math.pi)
+        L.centre, L.bound = L.c.clone(), bound
+        portal = L.kind == PORTAL
+        if has_sun:
+            pc = L.c[portal]
+            L.centre[-1] = pc.mean(0)
+            L.bound[-1] = ((pc - pc.mean(0)).norm(dim=1) + bound[portal]).max()
+            e_sun = float(L.radiance[-1].mean()) * L.sun_omega
+            power[-1] = e_sun * float(L.area[portal].sum()) * 0.5
+        L.power = power
+        L.prim_light = torch.full((P.n_prims,), -1, dtype=torch.long, device=dev)
+        L.prim_light[L.pid[L.pid >= 0]] = torch.nonzero(L.pid >= 0).squeeze(1)
+        L.n = n
+        return L
+
+    # -- radiance -----------------------------------------------------------------------------
+    def sky(self, w: Tensor) -> Tensor:
+        """Sky radiance ``[N,3]`` in directions ``w [N,3]`` (leaving the room), without the sun."""
+        y = w[:, 1:2]
+        up = self.horizon + (self.zenith - self.horizon) * y.clamp(min=0).sqrt()
+        down = self.horizon + (self.ground - self.horizon) * (-y * 8).clamp(0, 1)
+        return torch.where(y >= 0, up, down)
+
+    def sun(self, w: Tensor) -> Tensor:
+        if not self.has_sun:
+            return torch.zeros_like(w)
+        inside = (w @ self.sun_dir) >= self.sun_cos
+        return torch.where(inside[:, None], self.radiance[self.sun_index], 0.0)
+
+    def emitted(self, li: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:
+        """(area/sky radiance, sun radiance) seen along ``w`` on hitting light ``li`` (portals: the sky)."""
+        portal = (self.kind[li] == PORTAL)[:, None]
+        le = torch.where(portal, self.sky(w), self.radiance[li])
+        sun = torch.where(portal, self.sun(w), 0.0)
+        return le, sun
+
+    # -- selection ----------------------------------------------------------------------------
+    def select_probs(self, x: Tensor) -> Tensor:
+        """Light-selection probabilities ``[N, n]`` at points ``x [N,3]``."""
+        d2 = ((x[:, None] - self.centre[None]) ** 2).sum(2)
+        w = self.power / torch.maximum(d2, self.bound ** 2 + 1e-4)
+        w = w / w.sum(1, keepdim=True).clamp(min=1e-30)
+        return (1 - UNIFORM_SHARE) * w + UNIFORM_SHARE / self.n
+
+    # -- sampling -----------------------------------------------------------------------------
+    def sample(self, x: Tensor, u: Tensor):
+        """One light sample per point: ``(li, w, dist, le, pdf, is_sun)``.
+
+        ``u [N,3]`` uniforms; ``pdf`` is the solid-angle density including the selection
+        probability (0 where the sample is invalid, e.g. the back of a one-sided panel); ``le`` is
+        the radiance the source sends toward ``x`` (sky or sun radiance for portals/the sun).
+        """
+        N = len(x)
+        probs = self.select_probs(x)
+        cdf = probs.cumsum(1)
+        li = torch.searchsorted(cdf, (u[:, 0:1] * cdf[:, -1:]).contiguous()).squeeze(1).clamp(max=self.n - 1)
+        psel = probs.gather(1, li[:, None]).squeeze(1)
+        lo = torch.where(li > 0, cdf.gather(1, (li - 1).clamp(min=0)[:, None]).squeeze(1), 0.0)
+        u0 = ((u[:, 0] * cdf[:, -1] - lo) / psel.clamp(min=1e-12)).clamp(0, 1 - 1e-6)
+        u1, u2 = u[:, 1], u[:, 2]
+        w = torch.zeros(N, 3, device=x.device)
+        w[:, 1] = 1
+        dist = torch.full((N,), float("inf"), device=x.device)
+        pdf = torch.zeros(N, device=x.device)
+        gk = self.gkind[li]
+        # quads (panels, portals): uniform by area
+        m = torch.nonzero(gk == G.QUAD).squeeze(1)
+        if m.numel():
+            i = li[m]
+            y = (self.c[i] + self.ex[i] * ((2 * u1[m] - 1) * self.h[i, 0])[:, None]
+                 + self.ey[i] * ((2 * u2[m] - 1) * self.h[i, 1])[:, None])
+            w[m], dist[m], pdf[m] = _area_pdf(x[m], y, self.nq[i], self.area[i], one_sided=True)
+        # spheres: uniform in the subtended cone
+        m = torch.nonzero(gk == G.SPH).squeeze(1)
+        if m.numel():
+            i = li[m]
+            wc, dm, pm = _cone_sample(x[m], self.c[i], self.r[i], u1[m], u2[m])
+            w[m], dist[m], pdf[m] = wc, dm, pm
+        # cylinders: uniform by area over side and caps
+        m = torch.nonzero(gk == G.CYL).squeeze(1)
+        if m.numel():
+            i = li[m]
+            y, n = _cyl_point(self.c[i], self.r[i], self.hh[i], u0[m], u1[m], u2[m])
+            w[m], dist[m], pdf[m] = _area_pdf(x[m], y, n, self.area[i], one_sided=True)
+        # the sun: uniform in its cone
+        is_sun = self.kind[li] == SUN
+        m = torch.nonzero(is_sun).squeeze(1)
+        if m.numel():
+            cos_t = 1 - u1[m] * (1 - self.sun_cos)
+            sin_t = torch.sqrt((1 - cos_t * cos_t).clamp(min=0))
+            phi = 2 * math.pi * u2[m]
+            loc = torch.stack((sin_t * torch.cos(phi), sin_t * torch.sin(phi), cos_t), 1)
+            w[m] = local_to_world(loc, self.sun_dir.expand(len(m), 3))
+            pdf[m] = 1.0 / self.sun_omega
+        kind = self.kind[li]
+        le = torch.where((kind == AREA)[:, None], self.radiance[li], 0.0)
+        le = torch.where((kind == PORTAL)[:, None], self.sky(w), le)
+        le = torch.where((kind == SUN)[:, None], self.radiance[li], le)
+        return li, w, dist, le, pdf * psel, is_sun
+
+    def pdf(self, x: Tensor, li: Tensor, y: Tensor, w: Tensor) -> Tensor:
+        """Density of :meth:`sample` choosing direction ``w`` toward point ``y`` on light ``li``."""
+        psel = self.select_probs(x).gather(1, li[:, None]).squeeze(1)
+        gk = self.gkind[li]
+        out = torch.zeros(len(x), device=x.device)
+        d2 = ((y - x) ** 2).sum(1)
+        m = torch.nonzero(gk == G.QUAD).squeeze(1)
+        if m.numel():
+            i = li[m]
+            cos_l = -(w[m] * self.nq[i]).sum(1)
+            out[m] = torch.where(cos_l > 0, d2[m] / (self.area[i] * cos_l.clamp(min=1e-8)), 0.0)
+        m = torch.nonzero(gk == G.SPH).squeeze(1)
+        if m.numel():
+            i = li[m]
+            out[m] = 1.0 / _cone_solid_angle(x[m], self.c[i], self.r[i])
+        m = torch.nonzero(gk == G.CYL).squeeze(1)
+        if m.numel():
+            i = li[m]
+            n = _cyl_normal(y[m], self.c[i], self.r[i], self.hh[i])
+            cos_l = -(w[m] * n).sum(1)
+            out[m] = torch.where(cos_l > 0, d2[m] / (self.area[i] * cos_l.clamp(min=1e-8)), 0.0)
+        return out * psel
+
+    def pdf_sun(self, x: Tensor, w: Tensor) -> Tensor:
+        """Density of sampling the sun in direction ``w`` (zero outside its disc)."""
+        if not self.has_sun:
+            return torch.zeros(len(x), device=x.device)
+        psel = self.select_probs(x)[:, self.sun_index]
+        inside = (w @ self.sun_dir) >= self.sun_cos
+        return torch.where(inside, psel / self.sun_omega, 0.0)
+
+
+def _area_pdf(x, y, n, area, one_sided: bool):
+    v = y - x
+    d = v.norm(dim=1).clamp(min=1e-8)
+    w = v / d[:, None]
+    cos_l = -(w * n).sum(1)
+    if not one_sided:
+        cos_l = cos_l.abs()
+    pdf = torch.where(cos_l > 1e-6, d * d / (area * cos_l.clamp(min=1e-6)), 0.0)
+    return w, d, pdf
+
+
+def _cone_solid_angle(x, c, r):
+    d2 = ((c - x) ** 2).sum(1)
+    sin2 = (r * r / d2.clamp(min=1e-12)).clamp(max=1)
+    one_minus_cos = sin2 / (1 + torch.sqrt(1 - sin2))  # stable 1 - cos(theta_max)
+    return 2 * math.pi * one_minus_cos.clamp(min=1e-12)
+
+
+def _cone_sample(x, c, r, u1, u2):
+    v = c - x
+    d2 = (v * v).sum(1)
+    D = d2.sqrt()
+    axis = v / D[:, None]
+    sin2 = (r * r / d2).clamp(max=1)
+    omc = sin2 / (1 + torch.sqrt(1 - sin2))
+    one_m_cos_t = u1 * omc
+    cos_t = 1 - one_m_cos_t
+    sin_t = torch.sqrt((one_m_cos_t * (2 - one_m_cos_t)).clamp(min=0))
+    phi = 2 * math.pi * u2
+    loc = torch.stack((sin_t * torch.cos(phi), sin_t * torch.sin(phi), cos_t), 1)
+    w = local_to_world(loc, axis)
+    # distance to the near side of the sphere along w
+    b = (w * v).sum(1)
+    disc = (b * b - (d2 - r * r)).clamp(min=0)
+    dist = b - disc.sqrt()
+    pdf = torch.where(d2 > r * r, 1.0 / (2 * math.pi * omc.clamp(min=1e-12)), 0.0)
+    return w, dist, pdf
+
+
+def _cyl_point(c, r, hh, u0, u1, u2):
+    side_a = 2 * math.pi * r * 2 * hh
+    cap_a = math.pi * r * r
+    f_side = side_a / (side_a + 2 * cap_a)
+    side = u0 < f_side
+    top = u0 >= f_side + (1 - f_side) / 2
+    ang = 2 * math.pi * u1
+    side_p = torch.stack((r * torch.cos(ang), (2 * u2 - 1) * hh, r * torch.sin(ang)), 1)
+    rad = r * u2.sqrt()
+    cap_y = torch.where(top, hh, -hh)
+    cap_p = torch.stack((rad * torch.cos(ang), cap_y, rad * torch.sin(ang)), 1)
+    p = torch.where(side[:, None], side_p, cap_p)
+    side_n = torch.stack((torch.cos(ang), torch.zeros_like(ang), torch.sin(ang)), 1)
+    cap_n = torch.zeros_like(side_n)
+    cap_n[:, 1] = torch.where(top, 1.0, -1.0)
+    return c + p, torch.where(side[:, None], side_n, cap_n)
+
+
+def _cyl_normal(y, c, r, hh):
+    q = y - c
+    rad = torch.sqrt(q[:, 0] ** 2 + q[:, 2] ** 2)
+    on_side = (rad - r).abs() <= (q[:, 1].abs() - hh).abs()
+    side_n = torch.stack((q[:, 0], torch.zeros_like(rad), q[:, 2]), 1) / rad.clamp(min=1e-9)[:, None]
+    cap_n = torch.zeros_like(q)
+    cap_n[:, 1] = torch.sign(q[:, 1])
+    return torch.where(on_side[:, None], side_n, cap_n)
