@@ -55,10 +55,16 @@ bindir=$(dirname "$("$py" -c 'import sys; print(sys.executable)')")
 case "$mode" in
   --demo)
     shift || true
+    if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
+      log "no display: rendering the demo scene headlessly (EGL) to phyir-demo.png instead"
+      log "(interactive use needs a display; see docs/viewer.md for --headless/--screenshot)"
+      exec "$bindir/phyir-view" --headless --screenshot phyir-demo.png "$@"
+    fi
     exec "$bindir/phyir-view" "$@"
     ;;
   --test)
     shift || true
+    export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
     exec "$py" -m pytest -q "$@"
     ;;
   "") log "done. Run: $bindir/phyir-view  (or $bindir/phyir --help)";;

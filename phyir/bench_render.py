@@ -1,0 +1,568 @@
+"""Benchmark of the rendering layer: time against error (``phyir bench render``).
+
+Scenes are procedural: smooth random G-buffers (normals facing the camera, base colour, roughness,
+metalness) and a probe grid (one probe per ``block x block`` pixels) lit by an ambient gradient plus
+a few bright sources at fixed 3D positions, so probes vary smoothly across the grid.
+
+Errors are relative RMSE, sqrt(sum (x - ref)^2 / sum ref^2) over shaded pixels, against a converged
+reference: the mean of two importance-sampled renders at ``ref_spp / 2`` each, with seeds no method
+uses.  The reference's own noise is estimated from the difference of its halves and removed in
+quadrature (``err`` columns; ``err_raw`` keeps the plain value).  Times are the median of
+``repeats`` runs after one warm-up, with the interquartile range; the load average is recorded
+because the machine may be shared.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from phyir import pano
+from phyir.scene import PanoScene
+
+SCENE_KINDS = ("glossy", "metal", "mixed")
+
+
+def _smooth_field(g: torch.Generator, c: int, H: int, W: int, cells: tuple[int, int]) -> Tensor:
+    """Smooth random field ``[c, H, W]`` in [0, 1]: bicubic upsampling of a coarse random grid."""
+    coarse = torch.rand(1, c, *cells, generator=g, dtype=torch.float64)
+    coarse = pano.circular_pad(coarse, (2, 2, 0, 0))
+    up = F.interpolate(coarse, size=(H, W + 4 * W // cells[1]), mode="bicubic", align_corners=False)
+    off = 2 * W // cells[1]
+    return up[0, :, :, off:off + W].clamp(0, 1)
+
+
+def bench_scene(kind: str = "glossy", H: int = 128, W: int = 256, block: int = 2,
+                probe_size: tuple[int, int] = (16, 32), seed: int = 0) -> PanoScene:
+    """A procedural :class:`PanoScene` of ``kind`` ("glossy", "metal" or "mixed")."""
+    if kind not in SCENE_KINDS:
+        raise ValueError(f"unknown bench scene {kind!r}; expected one of {SCENE_KINDS}")
+    g = torch.Generator().manual_seed(seed)
+    dirs = pano.directions(H, W, dtype=torch.float64)
+    depth = 1.5 + 2.0 * _smooth_field(g, 1, H, W, (4, 8))
+    # normals: facing the camera, tilted by a smooth random field, kept away from grazing
+    tilt = (_smooth_field(g, 3, H, W, (8, 16)) - 0.5) * 2.4
+    n = F.normalize(-dirs + tilt, dim=0)
+    nv = (n * -dirs).sum(0, keepdim=True)
+    n = torch.where(nv < 0.1, F.normalize(n + (0.1 - nv + 0.05) * -dirs, dim=0), n)
+    albedo = 0.15 + 0.8 * _smooth_field(g, 3, H, W, (6, 12))
+    r = _smooth_field(g, 1, H, W, (6, 12))
+    m = _smooth_field(g, 1, H, W, (6, 12))
+    masks = {}
+    if kind == "glossy":
+        rough, metal = 0.2 + 0.4 * r, torch.zeros_like(m)
+    elif kind == "metal":
+        rough, metal = 0.1 + 0.4 * r, torch.ones_like(m)
+    else:
+        rough, metal = r, (m > 0.6).double()
+        e = _smooth_field(g, 1, H, W, (6, 12))
+        masks["emission"] = (e > 0.85).float()
+        masks["invalid"] = (e < 0.08).float()
+    probes = _probes(g, dirs, depth, H // block, W // block, probe_size)
+    image = torch.zeros(3, H, W)
+    return PanoScene(image=image, depth=depth.float(), normal=n.float(), albedo=albedo.float(),
+                     roughness=rough.float(), metallic=metal.float(), probes=probes.float(),
+                     masks=masks, meta={"bench": kind})
+
+
+def _probes(g: torch.Generator, dirs: Tensor, depth: Tensor, Hp: int, Wp: int,
+            size: tuple[int, int]) -> Tensor:
+    H, W = dirs.shape[-2:]
+    # probe positions: the surface point at the centre of each block
+    centres = pano.resize_area(dirs * depth, Hp, Wp)  # [3, Hp, Wp] block-mean points
+    pos = centres.permute(1, 2, 0).reshape(-1, 1, 1, 3)  # [N, 1, 1, 3]
+    h, w = size
+    d = pano.directions(h, w, dtype=torch.float64).permute(1, 2, 0)  # [h, w, 3]
+    # ambient: sky-ish gradient, warmer below
+    up = d[..., 1:2]
+    amb = 0.25 + 0.15 * up + torch.tensor([0.05, 0.03, 0.0], dtype=torch.float64) * (1 - up)
+    out = amb.expand(pos.shape[0], h, w, 3).clone()
+    for _ in range(3):
+        src = (torch.rand(3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor([6.0, 1.5, 6.0])
+        src[1] += 1.5
+        col = 0.6 + 0.4 * torch.rand(3, generator=g, dtype=torch.float64)
+        power = 40.0 + 60.0 * float(torch.rand(1, generator=g))
+        to = src - pos  # [N,1,1,3]
+        dist = to.norm(dim=-1, keepdim=True).clamp(min=0.3)
+        c = (to / dist * d).sum(-1, keepdim=True)
+        kappa = (dist / 0.25) ** 2  # ~ source radius 0.25 m
+        out += power / dist**2 * col * torch.exp(kappa * (c - 1))
+    return out.reshape(Hp, Wp, h, w, 3).permute(0, 1, 4, 2, 3).contiguous()
+
+
+# ---------------------------------------------------------------------------------------------
+# measuring
+
+PAPER_MS = 109.0  # rendering layer, 128x256, V100 (supplement Table 1)
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def time_call(fn: Callable[[], object], device: str, repeats: int) -> dict[str, float]:
+    """Median / quartiles / min / max wall time and median CPU time (seconds) of ``fn``.
+
+    One warm-up call first; calls under a second are repeated at least 7 times.
+    """
+    t0 = time.perf_counter()
+    fn()
+    _sync(device)
+    if time.perf_counter() - t0 < 1.0:
+        repeats = max(repeats, 7)
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        _sync(device)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    q = statistics.quantiles(wall, n=4) if len(wall) > 1 else [wall[0]] * 3
+    return {"median_s": statistics.median(wall), "q1_s": q[0], "q3_s": q[2], "min_s": min(wall),
+            "max_s": max(wall), "cpu_s": statistics.median(cpu), "cpu_min_s": min(cpu), "repeats": repeats}
+
+
+def rel_rmse(x: Tensor, ref: Tensor, mask: Tensor | None = None) -> float:
+    d2, r2 = (x - ref) ** 2, ref**2
+    if mask is not None:
+        d2, r2 = d2 * mask, r2 * mask
+    den = float(r2.sum())
+    return float("nan") if den == 0 else math.sqrt(float(d2.sum()) / den)
+
+
+def diffuse_quadrature(scene: PanoScene, chunk: int = 1024) -> Tensor:
+    """Noise-free diffuse layer ``[3, H, W]``: B (1-M)/pi ∫ L (n.l)+ dl by quadrature.
+
+    L is each pixel's bilinear mix of probes, itself bilinearly interpolated: integrated on the
+    prefilter's 4x4 supersampled grid of every probe texel (the same radiance Monte Carlo sees).
+    """
+    from phyir.prefilter import _fine_grid
+    from phyir.render import probe_weights
+
+    H, W = scene.size
+    Hp, Wp = scene.probe_grid  # type: ignore[misc]
+    h, w = scene.probe_size  # type: ignore[misc]
+    dev = scene.normal.device
+    d, to_probe = (t.to(dev, torch.float32) for t in _fine_grid(h, w))
+    n = scene.normal.reshape(3, -1).T
+    pidx, pw = probe_weights(H, W, Hp, Wp, dev)
+    probes = scene.probes.reshape(Hp * Wp, 3, h * w)
+    out = torch.empty(H * W, 3, device=dev)
+    for i in range(0, H * W, chunk):
+        k = (n[i:i + chunk] @ d.T).clamp(min=0) @ to_probe  # [p, h*w]: ∫ (n.l)+ L dl per texel
+        x = probes[pidx[i:i + chunk]]  # [p, 4, 3, h*w]
+        out[i:i + chunk] = torch.einsum("pt,pj,pjct->pc", k, pw[i:i + chunk], x)
+    rho = (scene.albedo * (1 - scene.metallic)).reshape(3, -1).T
+    return (rho * out / math.pi).T.reshape(3, H, W)
+
+
+class Reference:
+    """Converged layers: quadrature diffuse; specular as the mean of two independent importance-
+    sampled halves, whose difference estimates the remaining noise (per layer, relative)."""
+
+    def __init__(self, scene: PanoScene, spp: int, mask: Tensor, skips=True):
+        from phyir.render import render_scene
+
+        a = render_scene(scene, spp=spp // 2, seed=1_000_003, skips=skips)["specular"]
+        b = render_scene(scene, spp=spp // 2, seed=2_000_003, skips=skips)["specular"]
+        diffuse = diffuse_quadrature(scene) * mask
+        spec = (a + b) / 2
+        self.layers = {"diffuse": diffuse, "specular": spec, "image": diffuse + spec}
+        self.mask = mask
+        noise2 = float((((a - b) / 2) ** 2 * mask).sum())  # |ref - truth|^2 ~ |a - b|^2 / 4
+        self.noise = {k: (0.0 if k == "diffuse" else
+                          math.sqrt(noise2 / max(float((t**2 * mask).sum()), 1e-30)))
+                      for k, t in self.layers.items()}
+        self.spp = spp
+
+    def errors(self, out: dict[str, Tensor]) -> dict[str, float]:
+        res = {}
+        for k, ref in self.layers.items():
+            raw = rel_rmse(out[k], ref, self.mask)
+            noise = self.noise[k]
+            res[f"err_raw_{k}"] = raw
+            res[f"err_{k}"] = math.sqrt(max(raw * raw - noise * noise, 0.0)) if math.isfinite(raw) else raw
+        return res
+
+
+# ---------------------------------------------------------------------------------------------
+# the benchmark
+
+FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3,
+        "is_spp": (4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64}
+QUICK = {"size": (64, 128), "block": 2, "probe": (16, 32), "ref_spp": 512, "repeats": 2,
+         "is_spp": (4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16}
+
+
+def _loglog(xs: list[float], ys: list[float], y: float) -> float:
+    """x where the piecewise log-log line through (xs, ys) reaches y (ys decreasing in xs).
+
+    Extrapolates beyond the last point with the Monte Carlo rate y ~ x^-1/2 (and before the first
+    with the first segment's slope clamped to that rate).
+    """
+    lx, ly = [math.log(v) for v in xs], [math.log(v) for v in ys]
+    t = math.log(y)
+    for i in range(len(xs) - 1):
+        if ly[i] >= t >= ly[i + 1] and ly[i] != ly[i + 1]:
+            f = (t - ly[i]) / (ly[i + 1] - ly[i])
+            return math.exp(lx[i] + f * (lx[i + 1] - lx[i]))
+    if t < ly[-1]:
+        return math.exp(lx[-1] + 2 * (ly[-1] - t))
+    return math.exp(lx[0] - 2 * (t - ly[0]))
+
+
+def _interp_time(spps: list[float], times: list[float], spp: float) -> float:
+    """Time at ``spp``: log-log interpolation, linear in spp beyond the measured range."""
+    if spp >= spps[-1]:
+        return times[-1] * spp / spps[-1]
+    if spp <= spps[0]:
+        return times[0] * spp / spps[0]
+    for i in range(len(spps) - 1):
+        if spps[i] <= spp <= spps[i + 1]:
+            f = (math.log(spp) - math.log(spps[i])) / (math.log(spps[i + 1]) - math.log(spps[i]))
+            return math.exp(math.log(times[i]) + f * (math.log(times[i + 1]) - math.log(times[i])))
+    raise AssertionError("unreachable")
+
+
+def _shaded_mask(scene: PanoScene) -> Tensor:
+    m = torch.ones_like(scene.image[:1])
+    for name in ("emission", "invalid"):
+        if name in scene.masks:
+            m = m * (scene.masks[name] <= 0.5)
+    return m
+
+
+def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
+    """Time and error of uniform / importance sampling at several spp and of the prefiltered path."""
+    from phyir import prefilter
+    from phyir.render import render_scene
+
+    mask = _shaded_mask(scene)
+    t0 = time.perf_counter()
+    ref = Reference(scene, cfg["ref_spp"], mask)
+    log(f"  reference: quadrature diffuse + {cfg['ref_spp']} spp specular in "
+        f"{time.perf_counter() - t0:.1f} s, noise {ref.noise['image']:.1e} (image)")
+    rows = []
+
+    def measure(method: str, spp: int) -> None:
+        def call():
+            if method == "prefiltered":
+                prefilter._cache.clear()  # time the prefiltering too, every call
+            return render_scene(scene, spp=spp, method=method, seed=7)
+        out = call()
+        row = {"method": method, "spp": spp if method != "prefiltered" else 0,
+               **time_call(call, device, cfg["repeats"]), **ref.errors(out)}
+        rows.append(row)
+        log(f"  {method:<12} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
+            f"err image {row['err_image']:.4f} specular {row['err_specular']:.4f}")
+
+    measure("prefiltered", 1)
+    for spp in cfg["uniform_spp"]:
+        measure("uniform", spp)
+    for spp in cfg["is_spp"]:
+        measure("importance", spp)
+    return {"reference_spp": cfg["ref_spp"], "reference_noise": ref.noise, "rows": rows}
+
+
+def summarize(res: dict) -> dict:
+    """Targets: samples IS needs for uniform's error; prefiltered speed-up at equal error."""
+    rows = res["rows"]
+    isr = [r for r in rows if r["method"] == "importance"]
+    spp = [r["spp"] for r in isr]
+    out = {}
+    for layer in ("image", "specular"):
+        err = [r[f"err_{layer}"] for r in isr]
+        if not all(math.isfinite(e) and e > 0 for e in err):
+            continue
+        ratios = []
+        for r in rows:
+            if r["method"] == "uniform" and r[f"err_{layer}"] > 0:
+                e_u = r[f"err_{layer}"]
+                if e_u >= err[0]:  # already beaten at the smallest spp measured: a lower bound
+                    ratios.append({"uniform_spp": r["spp"], "uniform_err": e_u, "is_spp_same_err": spp[0],
+                                   "sample_ratio": r["spp"] / spp[0], "lower_bound": True})
+                    continue
+                need = _loglog(spp, err, e_u)
+                ratios.append({"uniform_spp": r["spp"], "uniform_err": e_u, "is_spp_same_err": need,
+                               "sample_ratio": r["spp"] / need, "lower_bound": False})
+        out[f"is_vs_uniform_{layer}"] = ratios
+    pref = next(r for r in rows if r["method"] == "prefiltered")
+    err = [r["err_image"] for r in isr]
+    if pref["err_image"] > 0 and all(e > 0 for e in err):
+        need = _loglog(spp, err, pref["err_image"])
+        cmp = {"prefiltered_err": pref["err_image"], "is_spp_same_err": need}
+        for key in ("median_s", "min_s", "cpu_s"):
+            t_is = _interp_time(spp, [r[key] for r in isr], need)
+            cmp[f"is_{key}"] = t_is
+            cmp[f"prefiltered_{key}"] = pref[key]
+            cmp[f"speedup_{key.split('_')[0]}"] = t_is / pref[key]
+        out["prefiltered_vs_is"] = cmp
+    return out
+
+
+def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], None]) -> list[dict]:
+    """Time saved and error introduced by each skip (importance sampling at ``skip_spp``).
+
+    The reference shades every valid non-emissive pixel with full Monte Carlo (no approximation).
+    """
+    from phyir.render import pixel_classes, render_scene
+
+    mask = _shaded_mask(scene)
+    spp = cfg["skip_spp"]
+    ref = Reference(scene, cfg["ref_spp"], mask, skips={"emissive"})
+    variants = {"none": set(), "emissive": {"emissive"}, "mirror": {"emissive", "mirror"},
+                "rough": {"emissive", "rough"}, "all": {"emissive", "mirror", "rough"}}
+    classes = pixel_classes(scene)
+    affected = {}
+    for name in ("mirror", "rough"):
+        m = torch.zeros(scene.size[0] * scene.size[1], device=mask.device)
+        m[classes[name]] = 1
+        affected[name] = m.reshape(1, *scene.size) * mask
+    from phyir import render
+
+    out = {}
+    variants["rough_all_cosine"] = {"emissive", "rough"}
+    for name, sk in variants.items():
+        def call(sk=sk, name=name):
+            old, render.ROUGH_ALL_COSINE = render.ROUGH_ALL_COSINE, name == "rough_all_cosine"
+            try:
+                return render_scene(scene, spp=spp, seed=7, skips=sk)
+            finally:
+                render.ROUGH_ALL_COSINE = old
+        r = call()
+        row = {**time_call(call, device, max(cfg["repeats"], 7)), **ref.errors(r)}
+        for a, m in affected.items():
+            row[f"err_{a}_pixels"] = rel_rmse(r["image"], ref.layers["image"], m)
+        row["err_rough_all_cosine_pixels"] = row["err_rough_pixels"]
+        out[name] = row
+        log(f"  skips {name:<9} {row['median_s'] * 1e3:9.1f} ms  CPU {row['cpu_s'] * 1e3:9.1f} ms  "
+            f"err image {row['err_image']:.4f}")
+    total = scene.size[0] * scene.size[1]
+    em = scene.masks.get("emission")
+    frac = {"emissive": float((em > 0.5).float().mean()) if em is not None else 0.0,
+            "mirror": len(classes["mirror"]) / total, "rough": len(classes["rough"]) / total}
+    table = []
+    frac["rough_all_cosine"] = frac["rough"]
+    for name in ("emissive", "mirror", "rough", "rough_all_cosine"):
+        r = out[name]
+        # emissive: compared with no skips; the others: on top of the emissive skip
+        prev = out["none"] if name == "emissive" else out["emissive"]
+        entry = {"skip": name, "fraction": frac[name], "time_saved_s": prev["median_s"] - r["median_s"],
+                 "time_saved_frac": 1 - r["median_s"] / prev["median_s"],
+                 "cpu_saved_s": prev["cpu_min_s"] - r["cpu_min_s"],
+                 "cpu_saved_frac": 1 - r["cpu_min_s"] / prev["cpu_min_s"],
+                 "err_image": r["err_image"], "err_image_without": prev["err_image"]}
+        if f"err_{name}_pixels" in r:  # error on the pixels the skip changes, with / without it
+            entry["err_pixels"] = r[f"err_{name}_pixels"]
+            entry["err_pixels_without"] = prev[f"err_{name}_pixels"]
+        table.append(entry)
+    return [{"variant": k, **v} for k, v in out.items()] + [{"summary": table}]
+
+
+def energy_curves(path: Path | None = None) -> dict:
+    """White-furnace energy of the model from the DFG table (validated against quadrature in the tests):
+    the diffuse excess of a white dielectric (B = 1, M = 0 reflects 1 + F0 A + B) and the energy lost
+    by the single-scattering specular lobe of a white metal (1 - A - B), against n.v per roughness.
+    Also checks the rendering layer itself: diffuse of B = 1, M = 0 under a unit environment."""
+    from phyir import prefilter
+    from phyir.render import shade_env
+
+    nv = torch.linspace(0.02, 1.0, 50)
+    roughs = (0.1, 0.3, 0.5, 0.7, 1.0)
+    curves = {"n_dot_v": nv.tolist(), "dielectric_total": {}, "metal_loss": {}}
+    for r in roughs:
+        e_d = prefilter.specular_albedo(nv, torch.full_like(nv, r), torch.tensor([0.04]))[:, 0]
+        e_m = prefilter.specular_albedo(nv, torch.full_like(nv, r), torch.tensor([1.0]))[:, 0]
+        curves["dielectric_total"][str(r)] = (1 + e_d).tolist()
+        curves["metal_loss"][str(r)] = (1 - e_m).tolist()
+    # furnace check through the layer: 16 x 32 pixels over all directions, view 60 deg off the normal
+    n = pano.directions(16, 32)
+    v = F.normalize(n + 1.7 * F.normalize(torch.cross(n, torch.tensor([0.3, 0.9, 0.1])[:, None, None]
+                                                      .expand_as(n), dim=0), dim=0), dim=0)
+    mats = (torch.ones(3, 16, 32), torch.full((1, 16, 32), 0.5), torch.zeros(1, 16, 32))
+    env = torch.ones(3, 8, 16)
+    furnace = {}
+    for method in ("importance", "uniform", "prefiltered"):
+        d, s = shade_env(n, v, *mats, env, spp=1024, method=method, parts=True)
+        furnace[method] = {"diffuse_mean": float(d.mean()), "diffuse_max_dev": float((d - 1).abs().max()),
+                           "specular_mean": float(s.mean())}
+    curves["furnace"] = furnace
+    if path is not None:
+        _plot_energy(curves, roughs, path)
+    return curves
+
+
+def _plot_energy(curves: dict, roughs: tuple[float, ...], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from phyir.io import atomic_write
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for r in roughs:
+        a.plot(curves["n_dot_v"], curves["dielectric_total"][str(r)], label=f"R = {r}")
+        b.plot(curves["n_dot_v"], curves["metal_loss"][str(r)], label=f"R = {r}")
+    a.axhline(1.0, color="k", lw=0.8, ls=":")
+    a.set(xlabel="n.v", ylabel="albedo (diffuse + specular)",
+          title="white dielectric (B=1, M=0): reflects more than it receives")
+    b.set(xlabel="n.v", ylabel="1 - specular albedo",
+          title="white metal (B=1, M=1): energy the specular lobe loses")
+    for ax in (a, b):
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = "cpu",
+              repeats: int | None = None, threads: int | None = None,
+              log: Callable[[str], None] = print) -> dict:
+    """Run the render benchmark; write ``render.json``, ``render.png`` and ``render_energy.png``.
+
+    ``threads`` sets torch's CPU threads for the run (on a shared machine one thread makes CPU time
+    a fair measure of work: no thread waits on a descheduled sibling).
+    """
+    cfg = dict(QUICK if quick else FULL)
+    if repeats is not None:
+        cfg["repeats"] = repeats
+    old_threads = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        return _run(out_dir, cfg, device, log)
+    finally:
+        torch.set_num_threads(old_threads)
+
+
+def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
+    H, W = cfg["size"]
+    result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),
+                               "torch": torch.__version__, "loadavg_start": os.getloadavg()},
+                    "scenes": {}}
+    for kind in ("glossy", "metal"):
+        b, (ph, pw) = cfg["block"], cfg["probe"]
+        log(f"render bench: scene {kind} {H}x{W}, probe per {b}x{b} pixels "
+            f"({H // b}x{W // b} probes of {ph}x{pw}) on {device}")
+        sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"]).to(device)
+        res = bench_methods(sc, cfg, device, log)
+        res["summary"] = summarize(res)
+        result["scenes"][kind] = res
+    log(f"render bench: skips on the mixed scene {H}x{W}")
+    sc = bench_scene("mixed", H, W, cfg["block"], cfg["probe"]).to(device)
+    result["skips"] = bench_skips(sc, cfg, device, log)
+    result["config"]["loadavg_end"] = os.getloadavg()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result["energy"] = energy_curves(out / "render_energy.png")
+    _write_json(out / "render.json", result)
+    plot(result, out / "render.png")
+    log(format_table(result))
+    return result
+
+
+def _write_json(path: Path, obj: dict) -> None:
+    from phyir.io import atomic_write
+
+    with atomic_write(path) as tmp:
+        Path(tmp).write_text(json.dumps(obj, indent=1))
+
+
+def format_table(result: dict) -> str:
+    """The printed / documented tables (markdown)."""
+    cfg = result["config"]
+    lines = [f"device {cfg['device']}, {cfg['threads']} thread(s), {cfg['size'][0]}x{cfg['size'][1]}, "
+             f"load average {cfg['loadavg_start'][0]:.1f} -> {cfg['loadavg_end'][0]:.1f}", ""]
+    for kind, res in result["scenes"].items():
+        lines += [f"scene {kind} (reference {res['reference_spp']} spp, noise "
+                  f"{res['reference_noise']['image']:.1e} removed)", "",
+                  "| method | spp | time ms (median) | IQR ms | min ms | CPU ms | err image | err diffuse "
+                  "| err specular |",
+                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+        for r in res["rows"]:
+            lines.append(f"| {r['method']} | {r['spp'] or '-'} | {r['median_s'] * 1e3:.1f} | "
+                         f"{r['q1_s'] * 1e3:.0f}-{r['q3_s'] * 1e3:.0f} | {r['min_s'] * 1e3:.0f} | "
+                         f"{r['cpu_s'] * 1e3:.0f} | "
+                         f"{r['err_image']:.4f} | "
+                         f"{r['err_diffuse']:.4f} | {r['err_specular']:.4f} |")
+        sm = res["summary"]
+        for layer in ("image", "specular"):
+            for q in sm.get(f"is_vs_uniform_{layer}", []):
+                if q["lower_bound"]:
+                    lines.append(f"- uniform {q['uniform_spp']} spp ({layer} err {q['uniform_err']:.4f}) is "
+                                 f"worse than importance at {q['is_spp_same_err']} spp: "
+                                 f">= {q['sample_ratio']:.0f}x fewer samples")
+                else:
+                    lines.append(f"- uniform {q['uniform_spp']} spp ({layer} err {q['uniform_err']:.4f}) = "
+                                 f"importance {q['is_spp_same_err']:.1f} spp: "
+                                 f"{q['sample_ratio']:.1f}x fewer samples")
+        p = sm.get("prefiltered_vs_is")
+        if p:
+            lines.append(f"- prefiltered (err {p['prefiltered_err']:.4f}, "
+                         f"{p['prefiltered_median_s'] * 1e3:.1f} ms) "
+                         f"= importance {p['is_spp_same_err']:.0f} spp ({p['is_median_s'] * 1e3:.0f} ms): "
+                         f"{p['speedup_median']:.1f}x faster (median wall), "
+                         f"{p['speedup_min']:.1f}x (min wall), {p['speedup_cpu']:.1f}x (CPU time)")
+        lines.append("")
+    sk = result["skips"][-1]["summary"]
+    lines += [f"skips (mixed scene, importance {cfg['skip_spp']} spp)", "",
+              "| skip | pixels | wall time saved (median) | CPU time saved (min) | err image with / without "
+              "| err on its pixels with / without |", "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    for e in sk:
+        lines.append(f"| {e['skip']} | {100 * e['fraction']:.1f}% | "
+                     f"{e['time_saved_s'] * 1e3:.0f} ms ({100 * e['time_saved_frac']:.0f}%) | "
+                     f"{e['cpu_saved_s'] * 1e3:.0f} ms ({100 * e['cpu_saved_frac']:.0f}%) | "
+                     f"{e['err_image']:.4f} / {e['err_image_without']:.4f} | "
+                     + (f"{e['err_pixels']:.4f} / {e['err_pixels_without']:.4f} |" if "err_pixels" in e
+                        else "n/a (image value by definition) |"))
+    return "\n".join(lines)
+
+
+def plot(result: dict, path: Path) -> None:
+    """Time against error (log-log): one column per scene, rows for the image and specular layers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from phyir.io import atomic_write
+
+    scenes = result["scenes"]
+    cfg = result["config"]
+    fig, axes = plt.subplots(2, len(scenes), figsize=(5.5 * len(scenes), 8), squeeze=False)
+    for col, (kind, res) in enumerate(scenes.items()):
+        for row, layer in enumerate(("image", "specular")):
+            ax = axes[row, col]
+            key = f"err_{layer}"
+            for method, style in (("uniform", "o--"), ("importance", "s-")):
+                rs = [r for r in res["rows"] if r["method"] == method]
+                ax.errorbar([r["median_s"] * 1e3 for r in rs], [r[key] for r in rs],
+                            xerr=[[(r["median_s"] - r["q1_s"]) * 1e3 for r in rs],
+                                  [(r["q3_s"] - r["median_s"]) * 1e3 for r in rs]], fmt=style, label=method)
+                for r in rs:
+                    ax.annotate(str(r["spp"]), (r["median_s"] * 1e3, r[key]), fontsize=7,
+                                xytext=(3, 3), textcoords="offset points")
+            p = next(r for r in res["rows"] if r["method"] == "prefiltered")
+            ax.plot([p["median_s"] * 1e3], [p[key]], "r*", ms=12, label="prefiltered")
+            ax.set(xscale="log", yscale="log", xlabel="time per image (ms, median)",
+                   ylabel=f"relative RMSE ({layer})",
+                   title=f"{kind}: {layer} ({cfg['size'][0]}x{cfg['size'][1]}, {cfg['device']})")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend()
+    fig.tight_layout()
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)

@@ -1,0 +1,116 @@
+"""Path-traced references for object insertion: a synthetic room rendered with and without an added
+sphere by the data generator's tracer (:mod:`phyir.synth`), used by
+``benchmarks/insert_vs_pathtrace.py`` to measure the GPU insertion against ground truth.
+
+The room is the one :func:`phyir.synth.dataset.generate_scene` draws for ``(seed, index)``; the
+sphere is one more primitive of the room (its own material and culling group), so the tracer
+simulates everything the insertion approximates: shadows, occlusion near contact, interreflection.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from phyir import pano
+from phyir.scene import PanoScene
+from phyir.synth import geometry as G
+from phyir.synth.materials import PLAIN, Material
+from phyir.synth.rooms import PrimSpec, Room, generate_room
+from phyir.synth.tracer import TraceSettings, trace
+
+
+@dataclass
+class Reference:
+    scene: PanoScene  # the room without the sphere: GT layers and probes (what insertion gets)
+    with_sphere: torch.Tensor  # [3, H, W] the room traced with the sphere
+    centre: np.ndarray  # camera frame, metres
+    radius: float
+    seconds: float
+
+
+def room_for(seed: int, index: int) -> Room:
+    return generate_room(np.random.default_rng([seed, index]))
+
+
+def add_sphere(room: Room, centre_cam: np.ndarray, radius: float,
+               material: tuple[tuple[float, float, float], float, float]) -> Room:
+    """A copy of ``room`` with a sphere (``material`` = base colour, roughness, metalness) whose
+    centre is ``centre_cam`` in the camera frame of :meth:`Room.build`."""
+    import copy
+
+    r = copy.deepcopy(room)
+    R = r.camera_matrix()
+    c_room = R.T @ np.asarray(centre_cam, np.float64) + np.asarray(r.camera, np.float64)  # inverse of build's
+    base, rough, metal = material
+    r.materials = list(r.materials) + [Material(PLAIN, tuple(base), tuple(base), 1.0, (rough, rough), metal)]
+    group = 1 + max([p.group for p in r.prims] + [-1])
+    r.prims = list(r.prims) + [PrimSpec(G.SPH, tuple(float(x) for x in c_room), (float(radius),),
+                                        len(r.materials) - 1, group=group)]
+    return r
+
+
+def floor_spot(scene: PanoScene, distance: tuple[float, float] = (1.3, 2.2), clearance: float = 0.5
+               ) -> tuple[float, float]:
+    """Pixel (u, v) of a floor point at ``distance`` metres whose neighbourhood within ``clearance``
+    metres is floor too (no furniture), nearest the image centre column."""
+    H, W = scene.size
+    d = pano.directions(H, W)
+    p = scene.depth * d
+    floor_y = float(p[1][scene.normal[1] > 0.99].median())
+    is_floor = (scene.normal[1] > 0.99) & ((p[1] - floor_y).abs() < 0.02)
+    horiz = torch.sqrt(p[0] ** 2 + p[2] ** 2)
+    cand = is_floor & (horiz > distance[0]) & (horiz < distance[1])
+    best, best_score = None, math.inf
+    for i, j in torch.nonzero(cand).tolist():
+        c = p[:, i, j]
+        near = (torch.linalg.vector_norm(p - c[:, None, None], dim=0) < clearance) & (p[1] > floor_y - 0.5)
+        # every scene point near the spot must be floor (no furniture or wall within the clearance)
+        if bool((near & ~is_floor).any()):
+            continue
+        score = abs(j + 0.5 - W / 2) + 0.1 * abs(i - 0.75 * H)
+        if score < best_score:
+            best, best_score = (j + 0.5, i + 0.5), score
+    if best is None:
+        raise RuntimeError("no free floor spot in this room")
+    return best
+
+
+def trace_reference(seed: int, index: int, radius: float,
+                    material: tuple[tuple[float, float, float], float, float], *,
+                    size: tuple[int, int] = (128, 256), probe_grid: tuple[int, int] = (16, 32),
+                    probe_size: tuple[int, int] = (16, 32), spp: int = 64, ref_spp: int = 256,
+                    sampler_seed: int = 7) -> Reference:
+    """Trace room ``(seed, index)`` without the sphere (layers + probes) and with it (image), the
+    sphere of ``radius`` resting on a free floor spot in front of the camera."""
+    import time
+
+    from phyir.placement import surface_at
+
+    t0 = time.perf_counter()
+    room = room_for(seed, index)
+    st = TraceSettings(size=size, probe_grid=probe_grid, probe_size=probe_size, spp=spp)
+    res = trace(room.build(), st, seed=sampler_seed)
+    scene = PanoScene(image=res.image, depth=res.depth, normal=res.normal, albedo=res.albedo,
+                      roughness=res.roughness, metallic=res.metallic, probes=res.probes,
+                      masks={"emission": res.emission})
+    u, v = floor_spot(scene)
+    contact = surface_at(scene, u, v).point
+    centre = contact + np.array([0.0, radius, 0.0])
+    st_ref = TraceSettings(size=size, probe_grid=None, spp=ref_spp)
+    with_sphere = trace(add_sphere(room, centre, radius, material).build(), st_ref, seed=sampler_seed).image
+    return Reference(scene, with_sphere, centre, radius, time.perf_counter() - t0)
+
+
+def sphere_mask(centre: np.ndarray, radius: float, depth: torch.Tensor) -> torch.Tensor:
+    """[H, W] bool: pixels whose camera ray meets the sphere before the scene surface."""
+    H, W = depth.shape[-2:]
+    d = pano.directions(H, W, dtype=torch.float64)
+    c = torch.as_tensor(centre, dtype=torch.float64)[:, None, None]
+    b = (d * c).sum(0)
+    disc = b * b - float((c * c).sum()) + radius * radius
+    t = b - torch.sqrt(disc.clamp(min=0))
+    return (disc > 0) & (t > 0) & (t < depth[0].double())

@@ -1,0 +1,537 @@
+"""The rendering layer: shade pixels with the BRDF of :mod:`phyir.brdf` under distant lighting.
+
+Two entry points, both batched, device-agnostic and differentiable with respect to normals, view
+vectors, materials and lighting:
+
+* :func:`shade_env` — every pixel lit by one environment map (per batch item).
+* :func:`render_scene` — every pixel of a :class:`~phyir.scene.PanoScene` lit by its own probe,
+  bilinear between the four probes of the grid around it (probe (a, b) sits at the centre of block
+  (a, b); wrap in longitude, clamp in latitude), seen from the camera centre.
+
+Methods
+-------
+``"importance"`` (default)
+    Monte Carlo, eq. 6 of the supplement: ``ceil(spp/2)`` cosine-weighted and ``floor(spp/2)`` GGX
+    half-vector samples per pixel, combined with the balance heuristic of multiple importance sampling
+    (every sample is weighted by ``1 / (n_d p_d + n_s p_s)``), which is unbiased for both lobes.
+    Metals keep the cosine samples too: they cover the GGX lobe's tails, where D-proportional
+    half-vector sampling at grazing views has large weights (measured: half/half beats 1/8-1/4
+    cosine and GGX only on metals at R = 0.3-0.5).
+``"uniform"``
+    ``spp`` directions uniform on the hemisphere (the baseline of the benchmark).
+``"prefiltered"``
+    Split sum, see :mod:`phyir.prefilter`: no samples, biased (measured in docs/rendering.md).
+
+Samples come from one scrambled Sobol (or Hammersley, or iid ``sampler="random"``) point set per
+lobe, rotated per pixel by seeded Cranley-Patterson shifts, so results don't depend on chunking and
+equal seeds give equal images on every device.  Sample directions and pdfs are detached: gradients
+reach the integrand (BRDF, cosine, radiance) and are unbiased for the expectation.
+
+Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/rendering.md)
+-----------------------------------------------------------------------------------------
+``invalid``  normals that are non-finite or ~zero, back-facing pixels (n.v <= 0: the BRDF is zero
+             there) and, in scenes, depth <= 0 or ``masks["invalid"] > 0.5``: zero, no shading.
+             Always applied (those pixels are zero either way).
+``emissive`` scenes only: ``masks["emission"] > 0.5`` → no shading; ``image`` keeps the scene's
+             image value there, ``diffuse``/``specular`` are zero.
+``mirror``   R < :data:`MIRROR_ROUGHNESS`: the specular lobe is one look-up in the reflected
+             direction times the lobe's directional albedo (DFG table); slight bias.
+``rough``    when the specular lobe can't exceed :data:`ROUGH_SPEC_RATIO` of the diffuse lobe under
+             any lighting (π max_l f_s / (B(1-M)) from :func:`phyir.prefilter.specular_peak_table`)
+             the GGX samples are skipped; the cosine samples still estimate the specular lobe, so
+             this costs variance, not bias.
+
+Precision: the layer always computes in float32 (float64 if given float64) with autocast disabled,
+because GGX at R = 0 spans ~1e12 in value and gradient, beyond float16/bfloat16.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from functools import lru_cache
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+from torch.utils.checkpoint import checkpoint
+
+from phyir import pano, prefilter
+from phyir.brdf import alpha_from_roughness, brdf, cosines, f0_from_material, ggx_d
+from phyir.errors import InputError
+from phyir.sampling import (
+    cosine_hemisphere,
+    cosine_hemisphere_pdf,
+    ggx_half_vector,
+    ggx_pdf,
+    local_to_world,
+    pixel_samples,
+    reflect,
+    rotation_shifts,
+    uniform_hemisphere,
+)
+from phyir.scene import PanoScene, SceneError
+
+METHODS = ("importance", "uniform", "prefiltered")
+SKIPS = frozenset({"invalid", "emissive", "mirror", "rough"})
+MIRROR_ROUGHNESS = 0.1
+ROUGH_SPEC_RATIO = 0.2
+ROUGH_ALL_COSINE = False
+CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
+_POLE_EPS = 1e-6
+
+
+# ---------------------------------------------------------------------------------------------
+# lighting: per-pixel mixtures of equirect probes
+
+
+@dataclass
+class _Lighting:
+    """Radiance of per-pixel probe mixtures: pixel p sees sum_k weight[p,k] probe[index[p,k]]."""
+
+    probes: Tensor  # [N, 3, h, w]
+    index: Tensor  # [P, K] long
+    weight: Tensor  # [P, K]
+
+
+def _texels(probes: Tensor) -> Tensor:
+    """Channels-last flat texels ``[N*h*w, 3]`` of probes ``[N, 3, h, w]``."""
+    return probes.permute(0, 2, 3, 1).reshape(-1, probes.shape[1])
+
+
+def _safe_dirs(d: Tensor) -> Tensor:
+    """Nudge directions off the poles so the longitude (atan2) has a finite gradient there."""
+    x, y, z = d.unbind(-1)
+    near = (x * x + z * z) < _POLE_EPS**2
+    return torch.stack((torch.where(near, x + _POLE_EPS, x), y, z), -1)
+
+
+def _mix(table: Tensor, index: Tensor, weight: Tensor) -> Tensor:
+    """``sum_j weight[:, j] * table[index[:, j]]``: ``table [M, C]``, ``index/weight [n, k]`` -> ``[n, C]``.
+
+    Without gradients to track this is one fused ``embedding_bag`` (2-20x faster on CPU); with them,
+    a gather and a batched product (embedding_bag's backward into a large table is slower).
+    """
+    if torch.is_grad_enabled() and (table.requires_grad or weight.requires_grad):
+        vals = table.index_select(0, index.reshape(-1)).reshape(*index.shape, table.shape[1])
+        return torch.bmm(weight[:, None, :], vals)[:, 0]
+    return F.embedding_bag(index, table, per_sample_weights=weight, mode="sum")
+
+
+def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: Tensor,
+              texel_major: int = 0, channels_first: bool = False) -> Tensor:
+    """Radiance ``[p, S, 3]`` in directions ``d [p, S, 3]`` of pixels with probes ``index/weight [p, K]``.
+
+    ``texels`` is probe-major channels-last ``[N*h*w, 3]``, texel-major ``[h*w*N, 3]`` when
+    ``texel_major`` = N, or the probes themselves ``[N, 3, h, w]`` when ``channels_first``.
+    """
+    p, s = d.shape[:2]
+    k = index.shape[1]
+    if d.requires_grad:
+        d = _safe_dirs(d)
+    u, v = pano.dir_to_uv(d, h, w, dim=-1)
+    tidx, twgt = pano.bilinear_taps(u, v, h, w)  # [p, S, 4]
+    ps, ts = (1, texel_major) if texel_major else (h * w * (3 if channels_first else 1), 1)
+    idx = (index[:, None, :, None] * ps + tidx[:, :, None, :] * ts).reshape(p * s, k * 4)
+    wgt = (weight[:, None, :, None] * twgt[:, :, None, :]).reshape(p * s, k * 4)
+    if channels_first:  # one bag per channel over the flat probe values
+        idx = (idx[:, None, :] + (torch.arange(3, device=idx.device) * (h * w))[None, :, None])
+        wgt = wgt[:, None, :].expand(-1, 3, -1)
+        return _mix(texels.reshape(-1, 1), idx.reshape(-1, k * 4), wgt.reshape(-1, k * 4)).reshape(p, s, 3)
+    return _mix(texels, idx, wgt).reshape(p, s, 3)
+
+
+# ---------------------------------------------------------------------------------------------
+# Monte Carlo over one chunk of pixels
+
+
+def _mc_chunk(n: Tensor, v: Tensor, base: Tensor, rough: Tensor, metal: Tensor, u_d: Tensor,
+              u_s: Tensor, texels: Tensor, index: Tensor, weight: Tensor, h: int, w: int,
+              uniform: bool, with_spec: bool) -> tuple[Tensor, Tensor]:
+    """(diffuse, specular) ``[p, 3]`` from ``u_d [p, n_d, 2]`` cosine and ``u_s [p, n_s, 2]`` GGX samples
+    (``uniform``: ``u_d`` are uniform-hemisphere samples)."""
+    n_d, n_s = u_d.shape[1], u_s.shape[1]
+    with torch.no_grad():
+        nn, vv = n.detach()[:, None], v.detach()[:, None]
+        alpha = alpha_from_roughness(rough.detach())[:, None]  # [p, 1, 1]
+        dirs = []
+        if n_d:
+            local = uniform_hemisphere(u_d) if uniform else cosine_hemisphere(u_d)
+            dirs.append(local_to_world(local, nn))
+        if n_s:
+            hv = local_to_world(ggx_half_vector(u_s, alpha), nn)
+            dirs.append(reflect(vv, hv))
+        l = torch.cat(dirs, 1) if len(dirs) > 1 else dirs[0]
+        c = cosines(nn, vv, l, dim=-1)
+        nl, _, nh, vh = c
+        if uniform:
+            pdf = torch.full_like(nl, n_d / (2 * math.pi))
+        else:
+            pdf = n_d * cosine_hemisphere_pdf(nl)
+            if n_s:
+                pdf = pdf + n_s * ggx_pdf(nh, vh, alpha, ggx_d(nh, alpha))
+        inv_pdf = torch.where(pdf > 0, 1 / pdf.clamp(min=1e-30), torch.zeros_like(pdf))
+    if n.requires_grad or v.requires_grad:  # the integrand's cosines carry the gradient
+        c = cosines(n[:, None], v[:, None], l, dim=-1)
+    fd, fs = brdf(*c, base[:, None], rough[:, None], metal[:, None])
+    lw = _radiance(texels, h, w, index, weight, l) * (c[0].clamp(min=0) * inv_pdf)
+    diffuse = (fd * lw).sum(1)
+    spec = (fs * lw).sum(1) if with_spec else torch.zeros_like(diffuse)
+    return diffuse, spec
+
+
+# ---------------------------------------------------------------------------------------------
+# pixel classes
+
+
+@dataclass
+class _Pixels:
+    """Flat, channels-last pixel inputs: ``n, v [P, 3]``, ``base [P, 3]``, ``rough, metal [P, 1]``."""
+
+    n: Tensor
+    v: Tensor
+    base: Tensor
+    rough: Tensor
+    metal: Tensor
+    skip: Tensor  # [P] bool: no shading at all
+    per_image: int  # pixels per image: pixel p draws the samples of pixel p % per_image
+
+
+def _classify(px: _Pixels, light: _Lighting, skips: frozenset[str], method: str) -> dict[str, Tensor]:
+    """Pixel indices per class: 'std', 'rough', 'mirror_d' (mirrors with a diffuse lobe), 'mirror'."""
+    with torch.no_grad():
+        active = ~px.skip
+        rho = (px.base * (1 - px.metal)).amax(-1)
+        has_d = rho > 0
+        rough = px.rough[:, 0]
+        nv = (px.n * px.v).sum(-1)
+        if method == "uniform":
+            return {"uniform": active.nonzero()[:, 0]}
+        mirror = active & (rough < MIRROR_ROUGHNESS) if "mirror" in skips else torch.zeros_like(active)
+        rough_skip = torch.zeros_like(active)
+        if "rough" in skips:
+            f0 = f0_from_material(px.base, px.metal).amax(-1)
+            t = prefilter.lookup_table(prefilter.specular_peak_table(device=nv.device, dtype=nv.dtype),
+                                       nv, rough)
+            bound = math.pi * (f0 * t[..., 0] + t[..., 1])
+            rough_skip = active & has_d & ~mirror & (bound <= ROUGH_SPEC_RATIO * rho)
+        full = active & ~mirror & ~rough_skip
+        pick = lambda m: m.nonzero()[:, 0]  # noqa: E731
+        return {"std": pick(full), "rough": pick(rough_skip),
+                "mirror_d": pick(mirror & has_d), "mirror": pick(mirror)}
+
+
+def _select(t: Tensor, idx: Tensor) -> Tensor:
+    return t.index_select(0, idx)
+
+
+def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, sampler: str,
+              skips: frozenset[str]) -> tuple[Tensor, Tensor]:
+    P = px.n.shape[0]
+    dev, dt = px.n.device, px.n.dtype
+    texels = _texels(light.probes)
+    h, w = light.probes.shape[-2:]
+    classes = _classify(px, light, skips, method)
+    n_half = (spp + 1) // 2
+    # (n_d, n_s, with_spec) per class
+    plan = {"uniform": (spp, 0, True), "std": (n_half, spp - n_half, True),
+            "rough": (spp if ROUGH_ALL_COSINE else n_half, 0, True), "mirror_d": (n_half, 0, False)}
+    shifts = None
+    if sampler != "random":  # the same per-pixel rotations in every image of a batch
+        shifts = rotation_shifts(px.per_image, 4, seed + 0x5EED, dev, dt).repeat(P // px.per_image, 1)
+    grad = torch.is_grad_enabled() and any(
+        t.requires_grad for t in (px.n, px.v, px.base, px.rough, px.metal, light.probes))
+    outs_idx, outs_d, outs_s = [], [], []
+    for name, (n_d, n_s, with_spec) in plan.items():
+        idx = classes.get(name)
+        if idx is None or idx.numel() == 0:
+            continue
+        chunk = max(1, CHUNK_SAMPLES // max(n_d + n_s, 1))
+        for c0 in range(0, idx.numel(), chunk):
+            ci = idx[c0:c0 + chunk]
+            if sampler == "random":
+                g = seed * 1000003 + c0 * 7 + len(outs_idx)
+                u_d = pixel_samples("random", ci.numel(), n_d, 2, g, dev, dt)
+                u_s = pixel_samples("random", ci.numel(), n_s, 2, g + 1, dev, dt)
+            else:
+                sh = shifts[ci]
+                u_d = pixel_samples(sampler, ci.numel(), n_d, 2, seed, dev, dt, shifts=sh[:, :2])
+                u_s = pixel_samples(sampler, ci.numel(), n_s, 2, seed + 1, dev, dt, shifts=sh[:, 2:])
+            args = (_select(px.n, ci), _select(px.v, ci), _select(px.base, ci), _select(px.rough, ci),
+                    _select(px.metal, ci), u_d, u_s, texels, _select(light.index, ci),
+                    _select(light.weight, ci), h, w, name == "uniform", with_spec)
+            if grad:
+                d, s = checkpoint(_mc_chunk, *args, use_reentrant=False)
+            else:
+                d, s = _mc_chunk(*args)
+            outs_idx.append(ci)
+            outs_d.append(d)
+            outs_s.append(s)
+    mirror = classes.get("mirror")
+    if mirror is not None and mirror.numel():
+        outs_idx.append(mirror)
+        outs_s.append(_mirror_specular(px, light, texels, mirror))
+        outs_d.append(torch.zeros_like(outs_s[-1]))
+    return _assemble(P, outs_idx, outs_d, outs_s, dev, dt)
+
+
+def _assemble(P: int, idx: list[Tensor], d: list[Tensor], s: list[Tensor], dev, dt) -> tuple[Tensor, Tensor]:
+    diffuse = torch.zeros(P, 3, device=dev, dtype=dt)
+    spec = torch.zeros(P, 3, device=dev, dtype=dt)
+    if idx:
+        i = torch.cat(idx)
+        diffuse = diffuse.index_add(0, i, torch.cat(d))
+        spec = spec.index_add(0, i, torch.cat(s))
+    return diffuse, spec
+
+
+def _mirror_specular(px: _Pixels, light: _Lighting, texels: Tensor, idx: Tensor) -> Tensor:
+    """One reflected look-up times the specular directional albedo."""
+    n, v = _select(px.n, idx), _select(px.v, idx)
+    nv = (n * v).sum(-1, keepdim=True)
+    r = F.normalize(reflect(v, n), dim=-1)
+    f0 = f0_from_material(_select(px.base, idx), _select(px.metal, idx))
+    albedo = prefilter.specular_albedo(nv[:, 0], _select(px.rough, idx)[:, 0], f0)
+    h, w = light.probes.shape[-2:]
+    rad = _radiance(texels, h, w, _select(light.index, idx), _select(light.weight, idx), r[:, None])
+    return albedo * rad[:, 0]
+
+
+# ---------------------------------------------------------------------------------------------
+# split sum
+
+
+def _sh_radiance(sh: Tensor, index: Tensor, weight: Tensor, d: Tensor) -> Tensor:
+    """``sum_k c_k Y_k(d)`` with coefficients ``sh [N, 3*K]`` mixed over the pixels' probes; ``[p, 3]``."""
+    c = _mix(sh, index, weight)  # [p, 3*K]
+    y = prefilter.sh_basis(d)  # [p, K]
+    return torch.bmm(c.reshape(len(y), 3, -1), y[:, :, None])[..., 0]
+
+
+def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
+    P = px.n.shape[0]
+    dev, dt = px.n.device, px.n.dtype
+    idx = (~px.skip).nonzero()[:, 0]
+    sel = (lambda t: t) if idx.numel() == P else (lambda t: _select(t, idx))  # noqa: E731
+    n, v, rough, base, metal = (sel(t) for t in (px.n, px.v, px.rough, px.base, px.metal))
+    index, weight = sel(light.index), sel(light.weight)
+    alphas = prefilter.PREFILTER_ALPHAS
+    i0, t = prefilter.level_coords(rough[:, 0], alphas)
+    level_w = [torch.where(i0 == lvl, 1 - t, torch.where(i0 + 1 == lvl, t, torch.zeros_like(t)))
+               for lvl in range(len(alphas))]
+    rows = [(wl > 0).nonzero()[:, 0] for wl in level_w]
+    rho = base * (1 - metal)
+    lit = (rho.detach().amax(-1) > 0).nonzero()[:, 0]
+    need = tuple(i for i, r in enumerate(rows) if r.numel()) + ((-1,) if lit.numel() else ())
+    pf = prefilter.prefiltered(light.probes, alphas, need)
+    N = light.probes.shape[0]
+    sh = None if pf.sh is None else pf.sh.permute(1, 2, 0).reshape(N, -1)  # [N, 3*K]
+    nv = (n * v).sum(-1)
+    r = F.normalize(reflect(v, n), dim=-1)
+
+    def look(level: int, rows: Tensor) -> Tensor:
+        kind, hl, wl = pf.plan[level]
+        ii, ww, d = index[rows], weight[rows], r[rows]
+        if kind == "sh":
+            return _sh_radiance(sh, ii, ww, d)
+        if kind == "probe":
+            return _radiance(light.probes, hl, wl, ii, ww, d[:, None], channels_first=True)[:, 0]
+        t = pf.maps[level]
+        return _radiance(t.reshape(-1, 3), hl, wl, ii, ww, d[:, None], texel_major=N)[:, 0]
+
+    diffuse = torch.zeros_like(rho)
+    if lit.numel():
+        diffuse = diffuse.index_add(0, lit, rho[lit] * _sh_radiance(sh, index[lit], weight[lit], n[lit]))
+    parts_i = [r_ for r_ in rows if r_.numel()]
+    parts_v = [level_w[lvl][r_, None] * look(lvl, r_) for lvl, r_ in enumerate(rows) if r_.numel()]
+    pf_rad = torch.zeros_like(diffuse)
+    if parts_i:
+        pf_rad = pf_rad.index_add(0, torch.cat(parts_i), torch.cat(parts_v))
+    spec = prefilter.specular_albedo(nv, rough[:, 0], f0_from_material(base, metal)) * pf_rad
+    if idx.numel() == P:
+        return diffuse, spec
+    return _assemble(P, [idx], [diffuse], [spec], dev, dt)
+
+
+# ---------------------------------------------------------------------------------------------
+# entry points
+
+
+def _check(method: str, spp: int, sampler: str) -> None:
+    if method not in METHODS:
+        raise InputError("method", f"expected one of {METHODS}, got {method!r}")
+    if method != "prefiltered" and (not isinstance(spp, int) or spp < 1):
+        raise InputError("spp", f"expected a positive integer, got {spp!r}")
+    if sampler not in ("sobol", "hammersley", "random"):
+        raise InputError("sampler", f"expected sobol, hammersley or random, got {sampler!r}")
+
+
+def _skip_set(skips: bool | Iterable[str]) -> frozenset[str]:
+    if skips is True:
+        return SKIPS
+    if skips is False:
+        return frozenset({"invalid"})
+    s = frozenset(skips) | {"invalid"}
+    if not s <= SKIPS:
+        raise InputError("skips", f"unknown skip {sorted(s - SKIPS)}; expected names from {sorted(SKIPS)}")
+    return s
+
+
+def _compute_dtype(*ts: Tensor) -> torch.dtype:
+    return torch.float64 if any(t.dtype == torch.float64 for t in ts) else torch.float32
+
+
+def _flat(t: Tensor, B: int, C: int) -> Tensor:
+    """``[B?, C|1, H, W]`` -> channels-last ``[B*H*W, C]``."""
+    t = t.reshape(-1, *t.shape[-3:]) if t.dim() == 4 else t[None]
+    return t.expand(B, C, *t.shape[-2:]).permute(0, 2, 3, 1).reshape(-1, C).contiguous()
+
+
+def _unflat(t: Tensor, B: int, H: int, W: int, batched: bool) -> Tensor:
+    out = t.reshape(B, H, W, -1).permute(0, 3, 1, 2)
+    return out if batched else out[0]
+
+
+def _pixels(normal: Tensor, view: Tensor, base_color: Tensor, roughness: Tensor, metallic: Tensor,
+            B: int, extra_skip: Tensor | None, dt: torch.dtype) -> _Pixels:
+    n = _flat(normal.to(dt), B, 3)
+    v = F.normalize(_flat(view.to(dt), B, 3), dim=-1)
+    base, rough, metal = (_flat(x.to(dt), B, c) for x, c in ((base_color, 3), (roughness, 1), (metallic, 1)))
+    with torch.no_grad():
+        norm = torch.linalg.vector_norm(n, dim=-1)
+        finite = torch.stack([torch.isfinite(x).all(-1) for x in (n, v, base, rough, metal)]).all(0)
+        skip = ~finite | (norm < 1e-6)
+    n = F.normalize(torch.where(skip[:, None], torch.zeros_like(n), n), dim=-1)
+    with torch.no_grad():
+        skip = skip | ((n * v).sum(-1) <= 0)
+        if extra_skip is not None:
+            skip = skip | extra_skip
+    clean = lambda x: torch.where(skip[:, None], torch.zeros_like(x), x)  # noqa: E731
+    return _Pixels(clean(n), v, clean(base), clean(rough), clean(metal), skip, n.shape[0] // B)
+
+
+def _shade(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, sampler: str,
+           skips: frozenset[str]) -> tuple[Tensor, Tensor]:
+    if method == "prefiltered":
+        return _shade_prefiltered(px, light)
+    return _shade_mc(px, light, spp, method, seed, sampler, skips)
+
+
+def shade_env(normal: Tensor, view: Tensor, base_color: Tensor, roughness: Tensor, metallic: Tensor,
+              env: Tensor, *, spp: int = 64, method: str = "importance", seed: int = 0,
+              sampler: str = "sobol", skips: bool | Iterable[str] = True,
+              parts: bool = False) -> Tensor | tuple[Tensor, Tensor]:
+    """Outgoing radiance ``[B?, 3, H, W]`` of pixels lit by a distant environment ``env [B?, 3, h, w]``.
+
+    ``normal``, ``view`` are ``[B?, 3, H, W]`` unit vectors (``view`` from the surface toward the eye);
+    ``base_color [B?, 3|1, H, W]``, ``roughness``/``metallic [B?, 1, H, W]``; an unbatched ``env``
+    lights every batch item.  ``parts=True`` returns ``(diffuse, specular)`` instead of their sum.
+    See the module doc for ``method``, ``sampler`` and ``skips`` (no emission mask here).
+    """
+    _check(method, spp, sampler)
+    batched = normal.dim() == 4
+    B = normal.shape[0] if batched else 1
+    H, W = normal.shape[-2:]
+    if env.dim() not in (3, 4) or env.shape[-3] != 3:
+        raise InputError("env", f"expected [3,h,w] or [B,3,h,w], got {list(env.shape)}")
+    dt = _compute_dtype(normal, view, base_color, roughness, metallic, env)
+    with torch.autocast(normal.device.type, enabled=False):
+        px = _pixels(normal, view, base_color, roughness, metallic, B, None, dt)
+        probes = env.to(dt).reshape(-1, *env.shape[-3:])
+        if probes.shape[0] not in (1, B):
+            raise InputError("env", f"batch {probes.shape[0]} doesn't match the pixels' batch {B}")
+        index = torch.arange(B, device=probes.device) if probes.shape[0] == B else \
+            torch.zeros(B, dtype=torch.long, device=probes.device)
+        index = index.repeat_interleave(H * W)[:, None]
+        light = _Lighting(probes, index, torch.ones(index.shape, device=probes.device, dtype=dt))
+        d, s = _shade(px, light, spp, method, seed, sampler, _skip_set(skips))
+    d, s = _unflat(d, B, H, W, batched), _unflat(s, B, H, W, batched)
+    return (d, s) if parts else d + s
+
+
+def probe_weights(H: int, W: int, Hp: int, Wp: int, device=None,
+                  dtype=torch.float32) -> tuple[Tensor, Tensor]:
+    """Probe-grid indices (``a * Wp + b``) and bilinear weights ``[H*W, 4]`` of every pixel.
+
+    Probe (a, b) sits at the centre of block (a, b); wraps in longitude, clamps in latitude.
+    """
+    j = (torch.arange(W, device=device, dtype=torch.float64) + 0.5) * (Wp / W)
+    i = (torch.arange(H, device=device, dtype=torch.float64) + 0.5) * (Hp / H)
+    v, u = torch.meshgrid(i, j, indexing="ij")
+    idx, wgt = pano.bilinear_taps(u.reshape(-1), v.reshape(-1), Hp, Wp)
+    return idx, wgt.to(dtype)
+
+
+@lru_cache(maxsize=8)
+def _view_dirs(H: int, W: int, dev: torch.device, dt: torch.dtype) -> Tensor:
+    return -pano.directions(H, W, dev, dt)
+
+
+@lru_cache(maxsize=8)
+def _probe_weights_cached(H: int, W: int, Hp: int, Wp: int, dev: torch.device,
+                          dt: torch.dtype) -> tuple[Tensor, Tensor]:
+    return probe_weights(H, W, Hp, Wp, dev, dt)
+
+
+def _scene_inputs(scene: PanoScene, sk: frozenset[str]):
+    """Flat pixels, lighting and emissive mask of a scene (inside the caller's autocast guard)."""
+    for name in ("normal", "albedo", "roughness", "metallic", "probes"):
+        if getattr(scene, name) is None:
+            raise SceneError(f"{name}: render_scene needs it (got None)")
+    H, W = scene.size
+    B = scene.image.shape[0] if scene.batched else 1
+    Hp, Wp = scene.probe_grid  # type: ignore[misc]
+    dev = scene.normal.device
+    dt = _compute_dtype(scene.normal, scene.albedo, scene.roughness, scene.metallic, scene.probes)
+    view = _view_dirs(H, W, dev, dt)
+    extra = torch.zeros(B * H * W, dtype=torch.bool, device=dev)
+    emissive = None
+    if "emission" in scene.masks and "emissive" in sk:
+        emissive = _flat(scene.masks["emission"], B, 1)[:, 0] > 0.5
+        extra |= emissive
+    if "invalid" in scene.masks:
+        extra |= _flat(scene.masks["invalid"], B, 1)[:, 0] > 0.5
+    if scene.depth is not None:
+        dep = _flat(scene.depth, B, 1)[:, 0]
+        extra |= ~(torch.isfinite(dep) & (dep > 0))
+    px = _pixels(scene.normal, view, scene.albedo, scene.roughness, scene.metallic, B, extra, dt)
+    probes = scene.probes.to(dt).reshape(B * Hp * Wp, *scene.probes.shape[-3:])
+    pidx, pw = _probe_weights_cached(H, W, Hp, Wp, dev, dt)
+    index = (pidx[None] + (torch.arange(B, device=dev) * (Hp * Wp))[:, None, None]).reshape(-1, 4)
+    return px, _Lighting(probes, index, pw.repeat(B, 1)), emissive, dt
+
+
+def render_scene(scene: PanoScene, *, spp: int = 64, method: str = "importance", seed: int = 0,
+                 sampler: str = "sobol", skips: bool | Iterable[str] = True) -> dict[str, Tensor]:
+    """Re-render a scene from its normals, materials and probes: ``dict(diffuse, specular, image)``.
+
+    Each ``[B?, 3, H, W]``.  The view vector of a pixel points back to the camera centre (minus its
+    panorama direction).  ``image = diffuse + specular`` except at emissive pixels (see module doc).
+    Missing normals, materials or probes raise :class:`~phyir.scene.SceneError`.
+    """
+    _check(method, spp, sampler)
+    sk = _skip_set(skips)
+    H, W = scene.size
+    B = scene.image.shape[0] if scene.batched else 1
+    with torch.autocast(scene.image.device.type, enabled=False):
+        px, light, emissive, dt = _scene_inputs(scene, sk)
+        d, s = _shade(px, light, spp, method, seed, sampler, sk)
+        img = d + s
+        if emissive is not None:
+            img = torch.where(emissive[:, None], _flat(scene.image.to(dt), B, 3), img)
+    out = {"diffuse": d, "specular": s, "image": img}
+    return {k: _unflat(t, B, H, W, scene.batched) for k, t in out.items()}
+
+
+def pixel_classes(scene: PanoScene, skips: bool | Iterable[str] = True) -> dict[str, Tensor]:
+    """Flat pixel indices (into ``B*H*W``) of each Monte Carlo path, for the skip measurements.
+
+    ``skipped`` (invalid, back-facing, emissive), ``std`` (full MIS), ``rough`` (no GGX samples),
+    ``mirror`` (one reflected look-up; ``mirror_d`` of them also sample the diffuse lobe).
+    """
+    sk = _skip_set(skips)
+    with torch.no_grad(), torch.autocast(scene.image.device.type, enabled=False):
+        px, light, _, _ = _scene_inputs(scene, sk)
+        classes = _classify(px, light, sk, "importance")
+    return {"skipped": px.skip.nonzero()[:, 0], **classes}

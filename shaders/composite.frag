@@ -1,0 +1,232 @@
+#version 330
+// Insertion compositing (supplement D.2) of every inserted object into one view of the panorama.
+// Per view pixel: the objects' impostors (object.frag, one tile each in imp_atlas, looked up by the
+// pixel's direction: every camera sits at the panorama's centre), and the scene surface seen there
+// as a receiver of the objects' shadows:
+//   dE = - sum_lights E_j(x) (1 - V_j(x))                        dominant lights, shadow maps (PCSS)
+//        + sum_proxies pi FF_k(x) (L_object(w_k) - L_residual(w_k))   occlusion near contact + bounce
+// I_all - I_pl = albedo dE / pi is added to the background (the differential of D.2); the object's
+// pixels take its radiance (I_all or I_obj, chosen when object.frag ran).
+// VIEWER 0 (export): background from the panorama (scene_image); linear composite, object-only and
+// shadow-matte targets.  VIEWER 1 (the viewer's overlay pass): background = the layer exactly as
+// viewer/renderer.py samples it (layer.glsl), output in display colours (display.glsl).
+#include "scene.glsl"
+#include "view.glsl"
+#ifndef VIEWER
+#define VIEWER 0
+#endif
+#if VIEWER
+#include "layer.glsl"
+#include "display.glsl"
+#endif
+#define MAX_OBJECTS 8
+#define MAX_LIGHTS 16
+#define MAX_PROXIES 64
+
+uniform sampler2D imp_atlas;          // object radiance (rgb) and visibility (a), one tile per object
+uniform sampler2D shadow_atlas;       // distance from each light to the object, one tile per light
+uniform int has_albedo;
+
+uniform int n_objects;
+uniform mat4 imp_vp[MAX_OBJECTS];     // world -> clip of each object's impostor camera
+uniform vec4 imp_tile[MAX_OBJECTS];   // (s0, t0, ds, dt) of its tile in imp_atlas
+uniform vec4 obj_sphere[MAX_OBJECTS]; // bounding sphere (centre, radius)
+uniform float obj_reach[MAX_OBJECTS]; // receivers farther than this from the centre get no occlusion
+uniform vec3 amb_full[MAX_OBJECTS * 6];  // irradiance / pi of the object's probe around +-x, +-y, +-z
+uniform vec3 amb_res[MAX_OBJECTS * 6];   // the same without the dominant lights
+uniform vec3 obj_albedo[MAX_OBJECTS];    // diffuse + specular albedo: what the object reflects
+
+uniform int n_lights;
+uniform int light_obj[MAX_LIGHTS];
+uniform vec3 light_pos[MAX_LIGHTS];
+uniform vec3 light_power[MAX_LIGHTS];    // irradiance at the object's centre facing the light
+uniform float light_dist[MAX_LIGHTS];    // from the object's centre
+uniform float light_size[MAX_LIGHTS];    // source radius, metres
+uniform mat4 light_vp[MAX_LIGHTS];
+uniform float light_tan[MAX_LIGHTS];     // tan of the half field of view of its shadow camera
+uniform float light_near[MAX_LIGHTS];
+uniform vec4 light_tile[MAX_LIGHTS];
+uniform float shadow_texel;              // ndc size of one shadow-map texel
+uniform int shadow_taps;                 // Poisson taps of the blocker search and of the filter (<= 16)
+
+uniform int n_proxies;
+uniform int proxy_obj[MAX_PROXIES];
+uniform vec4 proxy[MAX_PROXIES];         // spheres (centre, radius) standing in for each object's volume
+
+layout(location = 0) out vec4 out_colour;   // composite (rgb), object alpha (a)
+#if !VIEWER
+layout(location = 1) out vec4 out_object;   // object radiance x alpha (rgb), alpha
+layout(location = 2) out vec4 out_shadow;   // shadow matte (fraction of light removed), dE / pi, 0, 1
+#endif
+
+const vec2 POISSON[16] = vec2[16](
+    vec2(-0.94201624, -0.39906216), vec2(0.94558609, -0.76890725), vec2(-0.09418410, -0.92938870),
+    vec2(0.34495938, 0.29387760), vec2(-0.91588581, 0.45771432), vec2(-0.81544232, -0.87912464),
+    vec2(-0.38277543, 0.27676845), vec2(0.97484398, 0.75648379), vec2(0.44323325, -0.97511554),
+    vec2(0.53742981, -0.47373420), vec2(-0.26496911, -0.41893023), vec2(0.79197514, 0.19090188),
+    vec2(-0.24188840, 0.99706507), vec2(-0.81409955, 0.91437590), vec2(0.19984126, 0.78641367),
+    vec2(0.14383161, -0.14100790));
+
+// half-life 2 ambient cubes: cos^2-weighted blend of the six axis values of object k
+vec3 cube_blend(vec3 px, vec3 nx, vec3 py, vec3 ny, vec3 pz, vec3 nz, vec3 d) {
+    vec3 w = d * d;
+    return w.x * (d.x >= 0.0 ? px : nx) + w.y * (d.y >= 0.0 ? py : ny) + w.z * (d.z >= 0.0 ? pz : nz);
+}
+
+vec3 ambient_full(int k, vec3 d) {
+    int o = 6 * k;
+    return cube_blend(amb_full[o], amb_full[o + 1], amb_full[o + 2], amb_full[o + 3], amb_full[o + 4],
+                      amb_full[o + 5], d);
+}
+
+vec3 ambient_res(int k, vec3 d) {
+    int o = 6 * k;
+    return cube_blend(amb_res[o], amb_res[o + 1], amb_res[o + 2], amb_res[o + 3], amb_res[o + 4],
+                      amb_res[o + 5], d);
+}
+
+// fraction of the cosine-weighted hemisphere a sphere covers (horizon-clipped form factor;
+// Snyder 1996 / Lagarde & de Rousiers 2014), cos_t toward its centre, sin2_s = (r / d)^2
+float sphere_form_factor(float cos_t, float sin2_s) {
+    sin2_s = min(sin2_s, 0.9999);
+    cos_t = clamp(cos_t, -1.0, 1.0);
+    float sin_t = sqrt(max(1.0 - cos_t * cos_t, 1e-12));
+    float e;
+    if (cos_t * cos_t > sin2_s) {
+        e = PI * sin2_s * max(cos_t, 0.0);
+    } else {
+        float x = sqrt(1.0 / sin2_s - 1.0);
+        float y = clamp(-x * cos_t / sin_t, -1.0, 1.0);
+        float sy = sin_t * sqrt(1.0 - y * y);
+        e = (cos_t * acos(y) - x * sy) * sin2_s + atan(sy, x);
+    }
+    return clamp(e / PI, 0.0, 1.0);
+}
+
+float shadow_distance(int j, vec2 ndc) {
+    vec4 t = light_tile[j];
+    vec2 st = t.xy + (clamp(ndc, -1.0, 1.0) * 0.5 + 0.5) * t.zw;
+    return texture(shadow_atlas, st).r;
+}
+
+// visibility of light j from receiver x: percentage-closer soft shadows
+float light_visibility(int j, vec3 x) {
+    vec4 c = light_vp[j] * vec4(x, 1.0);
+    if (c.w <= 1e-6) return 1.0;
+    vec2 ndc = c.xy / c.w;
+    if (any(greaterThan(abs(ndc), vec2(1.0)))) return 1.0;
+    float dr = length(x - light_pos[j]);
+    float bias = 1e-3 * dr + 0.004;
+    float near = light_near[j];
+    float search = clamp(light_size[j] * max(dr - near, 0.0) / (dr * near * light_tan[j]), shadow_texel, 0.5);
+    float blockers = 0.0, count = 0.0;
+    for (int i = 0; i < shadow_taps; ++i) {
+        float d = shadow_distance(j, ndc + POISSON[i] * search);
+        if (d < dr - bias) { blockers += d; count += 1.0; }
+    }
+    if (count == 0.0) return 1.0;
+    float db = blockers / count;
+    float penumbra = light_size[j] * (dr - db) / db;
+    float radius = max(penumbra / (dr * light_tan[j]), 1.5 * shadow_texel);
+    float lit = 0.0;
+    for (int i = 0; i < shadow_taps; ++i)
+        lit += shadow_distance(j, ndc + POISSON[i] * radius) >= dr - bias ? 1.0 : 0.0;
+    return lit / float(shadow_taps);
+}
+
+void main() {
+    bool inside;
+    vec2 uv = view_uv(scene_size, inside);
+#if VIEWER
+    vec3 bg = layer_value().rgb;
+#else
+    vec3 bg = texture(scene_image, uv / scene_size).rgb;
+#endif
+    vec4 result = vec4(bg, 0.0);
+    vec3 obj_rgb = vec3(0.0);
+    float alpha = 0.0, matte = 0.0, de_pi = 0.0;
+    if (inside) {
+        vec3 d = uv_to_dir(uv, scene_size);
+        // -- the objects (impostor tiles, premultiplied), sorted far to near by the caller
+        for (int k = 0; k < n_objects; ++k) {
+            vec4 c = imp_vp[k] * vec4(d, 1.0);
+            if (c.w <= 1e-6) continue;
+            vec2 ndc = c.xy / c.w;
+            if (any(greaterThan(abs(ndc), vec2(1.0)))) continue;
+            vec4 t = imp_tile[k];
+            vec4 s = texture(imp_atlas, t.xy + (ndc * 0.5 + 0.5) * t.zw);
+            obj_rgb = s.rgb + (1.0 - s.a) * obj_rgb;
+            alpha = s.a + (1.0 - s.a) * alpha;
+        }
+        // -- the scene surface as a receiver
+        float depth = scene_depth_at(d);
+        if (depth > 0.0) {
+            ivec2 ij = scene_texel(d);
+            vec3 x = depth * d;
+            vec3 n = normalize(texelFetch(scene_normal, ij, 0).xyz);
+            vec3 dE = vec3(0.0);
+            vec3 e_pl = vec3(0.0);
+            bool near_any = false;
+            for (int k = 0; k < n_objects; ++k) {
+                float dc = length(x - obj_sphere[k].xyz);
+                if (dc > obj_reach[k]) continue;
+                near_any = true;
+                e_pl = max(e_pl, PI * ambient_full(k, n));
+                // ambient occlusion and bounce from the proxies of object k: the radiance it hides
+                // (the residual, seen toward the object) and what it sends back
+                float ff_sum = 0.0, keep = 1.0;
+                for (int q = 0; q < n_proxies; ++q) {
+                    if (proxy_obj[q] != k) continue;
+                    vec3 w = proxy[q].xyz - x;
+                    float dd = max(dot(w, w), 1e-12);
+                    float sin2 = proxy[q].w * proxy[q].w / dd;
+                    if (sin2 < 1e-3) continue;  // covers < 0.1% of the hemisphere
+                    float ff = sphere_form_factor(dot(n, w) * inversesqrt(dd), sin2);
+                    ff_sum += ff;
+                    keep *= 1.0 - ff;
+                }
+                if (ff_sum > 0.0) {  // overlapping proxies: 1 - prod(1 - ff), not the sum
+                    vec3 wc = normalize(obj_sphere[k].xyz - x);
+                    vec3 l_obj = obj_albedo[k] * ambient_full(k, -wc);
+                    dE += (1.0 - keep) * PI * (l_obj - ambient_res(k, wc));
+                }
+            }
+            for (int j = 0; j < n_lights; ++j) {
+                int k = light_obj[j];
+                vec3 to_l = light_pos[j] - x;
+                float dl = length(to_l);
+                float cos_l = dot(n, to_l / max(dl, 1e-6));
+                if (cos_l <= 0.0) continue;
+                vec4 c = light_vp[j] * vec4(x, 1.0);
+                if (c.w <= 1e-6 || any(greaterThan(abs(c.xy / c.w), vec2(1.0)))) continue;
+                float fall = light_dist[j] * light_dist[j] / max(dl * dl, 1e-6);
+                vec3 e = light_power[j] * min(fall, 16.0) * cos_l;
+                e_pl = max(e_pl, PI * ambient_full(k, n));
+                dE -= e * (1.0 - light_visibility(j, x));
+                near_any = true;
+            }
+            if (near_any) {
+                vec3 albedo;
+                if (has_albedo != 0) {
+                    albedo = texelFetch(scene_albedo, ij, 0).rgb;
+                } else {  // the albedo the background implies under the object-free lighting
+                    albedo = clamp(PI * bg / max(e_pl, vec3(1e-6)), 0.0, 1.0);
+                }
+                vec3 shadowed = max(bg + albedo * dE / PI, vec3(0.0));
+                float lum_pl = dot(e_pl, vec3(0.2126, 0.7152, 0.0722));
+                matte = clamp(-dot(dE, vec3(0.2126, 0.7152, 0.0722)) / max(lum_pl, 1e-6), 0.0, 1.0);
+                de_pi = dot(albedo * dE / PI, vec3(0.2126, 0.7152, 0.0722));
+                result.rgb = shadowed;
+            }
+        }
+        result.rgb = obj_rgb + (1.0 - alpha) * result.rgb;
+        result.a = alpha;
+    }
+#if VIEWER
+    out_colour = display_colour(vec4(result.rgb, inside ? 1.0 : 0.0));
+#else
+    out_colour = result;
+    out_object = vec4(obj_rgb, alpha);
+    out_shadow = vec4(matte, de_pi, 0.0, 1.0);
+#endif
+}

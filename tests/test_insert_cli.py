@@ -1,0 +1,107 @@
+"""``phyir insert`` end to end on a scene file, headless (EGL); errors exit 2 with one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from insert_fixtures import box_room
+
+from phyir import exr
+from phyir.cli import main
+from phyir.io import save_panorama, save_scene
+
+moderngl = pytest.importorskip("moderngl")
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    try:
+        moderngl.create_standalone_context(backend="egl", require=330).release()
+    except Exception as e:  # noqa: BLE001
+        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
+    path = tmp_path_factory.mktemp("insert") / "room.exr"
+    save_scene(box_room(64, 128), path)
+    return path
+
+
+def test_command_module_imports_no_gl():
+    code = ("import sys, argparse, phyir.commands.insert as m; m.add_arguments(argparse.ArgumentParser());"
+            "print(any(k in sys.modules for k in ('moderngl', 'viewer.insertion', 'trimesh')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_insert_writes_passes_and_png(scene_file, tmp_path, capsys):
+    out = tmp_path / "ball.exr"
+    rc = main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.25", "--at", "40,50",
+               "--material", "matte-silver", "--quality", "draft", "-o", str(out)])
+    assert rc == 0
+    assert (tmp_path / "ball.png").stat().st_size > 1000
+    headers = exr.read_headers(out)
+    (h,) = headers
+    assert set(h.channels) == {"R", "G", "B", "object.A", "shadow.Y", "object.R", "object.G", "object.B"}
+    assert (h.height, h.width) == (64, 128)  # the panorama's resolution
+    (chans,) = exr.read_pixels(out, headers)
+    alpha, matte = chans["object.A"], chans["shadow.Y"]
+    assert 10 < alpha.sum() < 200 and matte.max() > 0.2
+    assert h.strings["phyir.material"] == "0.972,0.96,0.915,0.5,1"
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_insert_perspective_and_position(scene_file, tmp_path):
+    out = tmp_path / "cube.exr"
+    rc = main(["insert", str(scene_file), "--object", "cube", "--scale", "0.2", "--position", "0.8,-1.0,-2.5",
+               "--view", "perspective", "--size", "96x64", "--quality", "draft", "-o", str(out)])
+    assert rc == 0
+    headers = exr.read_headers(out)
+    assert (headers[0].width, headers[0].height) == (96, 64)
+    alpha = exr.read_pixels(out, headers)[0]["object.A"]
+    # the view is aimed at the cube: its pixels are around the image centre
+    ys, xs = np.nonzero(alpha > 0.5)
+    assert len(xs) > 20
+    assert abs(xs.mean() - 48) < 5 and abs(ys.mean() - 32) < 5
+
+
+def test_dynamic_insertion_frames_gif_and_flicker(scene_file, tmp_path):
+    out = tmp_path / "move.exr"
+    rc = main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.2", "--path", "30,50:50,50",
+               "--frames", "4", "--quality", "draft", "-o", str(out)])
+    assert rc == 0
+    for i in range(4):
+        assert (tmp_path / f"move_{i:04d}.exr").exists() and (tmp_path / f"move_{i:04d}.png").exists()
+    from PIL import Image
+
+    gif = Image.open(tmp_path / "move.gif")
+    assert gif.n_frames == 4
+    stats = json.loads((tmp_path / "move_flicker.json").read_text())
+    assert stats["static_background_change"] == 0.0  # untouched pixels are the panorama, bit for bit
+    assert stats["object_step"] < 0.1
+
+
+def test_user_errors_exit_2_with_one_line(scene_file, tmp_path, capsys):
+    plain = tmp_path / "plain.hdr"
+    import torch
+
+    save_panorama(torch.rand(3, 16, 32), plain)
+    cases = [
+        (["--object", "sphere", "--at", "500,10"], "outside the 128x64 panorama"),
+        (["--object", "sphere", "--at", "10,50", "--material", "gold"], "--material"),
+        (["--object", "teapot", "--at", "10,50"], "--object"),
+        (["--object", "sphere", "--at", "1,2", "-o", str(tmp_path / "a.jpg")], "must be .exr"),
+    ]
+    for extra, msg in cases:
+        argv = ["insert", str(scene_file), *extra]
+        if "-o" not in extra:
+            argv += ["-o", str(tmp_path / "x.exr")]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert msg in err and "\n" not in err, err
+    assert main(["insert", str(plain), "--object", "sphere", "--at", "1,2",
+                 "--weights", str(tmp_path / "none"), "-o", str(tmp_path / "x.exr")]) == 2
+    cap = capsys.readouterr()
+    assert "plain.hdr: no depth or probes: predicting" in cap.out  # a plain panorama goes through the model
+    assert "weights" in cap.err and "\n" not in cap.err.strip()

@@ -1,0 +1,139 @@
+"""Split-sum tables and probe prefiltering (phyir.prefilter), against independent quadratures."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from phyir import pano, prefilter
+
+
+def _hemisphere(nt: int = 800, np_: int = 400):
+    t = (torch.arange(nt, dtype=torch.float64) + 0.5) * (math.pi / 2 / nt)
+    p = (torch.arange(np_, dtype=torch.float64) + 0.5) * (2 * math.pi / np_)
+    t, p = torch.meshgrid(t, p, indexing="ij")
+    d = torch.stack((t.sin() * p.cos(), t.sin() * p.sin(), t.cos()), -1).reshape(-1, 3)
+    return d, (t.sin() * (math.pi / 2 / nt) * (2 * math.pi / np_)).reshape(-1)
+
+
+def test_dfg_table_matches_brute_force_quadrature():
+    table = prefilter.dfg_table(dtype=torch.float64)
+    n = table.shape[-1]
+    l, w = _hemisphere()
+    for i, j in ((12, 3), (15, 20), (20, 10), (31, 31), (25, 0)):  # R = (i+.5)/n >= 0.39
+        R, nv = (i + 0.5) / n, (j + 0.5) / n
+        v = torch.tensor([math.sqrt(1 - nv * nv), 0, nv], dtype=torch.float64)
+        h = (l + v) / (l + v).norm(dim=-1, keepdim=True)
+        nh, vh, nl = h[:, 2], h @ v, l[:, 2]
+        a = R * R
+        D = a * a / (math.pi * (nh * nh * (a * a - 1) + 1) ** 2)
+        k = (R + 1) ** 2 / 8
+        vis = 1 / (4 * (nl * (1 - k) + k) * (nv * (1 - k) + k))
+        fc = 2 ** ((-5.55473 * vh - 6.98316) * vh)
+        A = float(((1 - fc) * D * vis * nl * w).sum())
+        B = float((fc * D * vis * nl * w).sum())
+        assert abs(float(table[0, i, j]) - A) < 2e-3 * max(A, 0.1), (i, j, float(table[0, i, j]), A)
+        assert abs(float(table[1, i, j]) - B) < 2e-3 * max(B, 0.1), (i, j, float(table[1, i, j]), B)
+
+
+def test_lookup_table_hits_texel_centres_and_clamps():
+    t = torch.rand(2, 8, 8, dtype=torch.float64)
+    nv = (torch.tensor([2, 5]) + 0.5) / 8
+    r = (torch.tensor([7, 0]) + 0.5) / 8
+    out = prefilter.lookup_table(t, nv.double(), r.double())
+    torch.testing.assert_close(out, torch.stack([t[:, 7, 2], t[:, 0, 5]]))
+    out = prefilter.lookup_table(t, torch.tensor([0.0, 1.0], dtype=torch.float64),
+                                 torch.tensor([0.0, 1.0], dtype=torch.float64))
+    torch.testing.assert_close(out, torch.stack([t[:, 0, 0], t[:, 7, 7]]))
+
+
+def test_specular_albedo_is_f0_a_plus_b():
+    t = prefilter.dfg_table()
+    f0 = torch.tensor([[0.04, 0.5, 1.0]])
+    e = prefilter.specular_albedo(torch.tensor([(3 + 0.5) / 32]), torch.tensor([(9 + 0.5) / 32]), f0)
+    torch.testing.assert_close(e, f0 * t[0, 9, 3] + t[1, 9, 3])
+
+
+def test_sh_basis_is_orthonormal():
+    d = pano.directions(128, 256, dtype=torch.float64).permute(1, 2, 0).reshape(-1, 3)
+    w = pano.solid_angles(128, 256, dtype=torch.float64).reshape(-1, 1)
+    y = prefilter.sh_basis(d)
+    assert y.shape[-1] == 25
+    torch.testing.assert_close((y * w).T @ y, torch.eye(25, dtype=torch.float64), atol=2e-3, rtol=0)
+
+
+def _smooth_env(h: int, w: int) -> torch.Tensor:
+    d = pano.directions(h, w, dtype=torch.float64)
+    a = torch.tensor([0.3, 0.8, -0.5], dtype=torch.float64)
+    a = a / a.norm()
+    lobe = torch.exp(3 * ((d * a[:, None, None]).sum(0) - 1))
+    return torch.stack((1 + 4 * lobe, 0.5 + 2 * lobe + 0.3 * d[1], 0.8 + d[0] ** 2))
+
+
+def _bilinear_radiance(env: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    return pano.sample_dir(env, dirs.T, dim=0).T  # [F, 3]
+
+
+def test_irradiance_sh_matches_brute_force():
+    env = _smooth_env(16, 32)
+    fine = pano.directions(256, 512, dtype=torch.float64).reshape(3, -1).T
+    om = pano.solid_angles(256, 512, dtype=torch.float64).reshape(-1)
+    L = _bilinear_radiance(env, fine)
+    normals = torch.nn.functional.normalize(torch.randn(20, 3, dtype=torch.float64), dim=-1)
+    brute = ((normals @ fine.T).clamp(min=0) * om) @ L / math.pi  # [20, 3]
+    c = prefilter.irradiance_sh(env)  # [3, 25]
+    sh = prefilter.sh_basis(normals) @ c.T
+    torch.testing.assert_close(sh, brute, rtol=1e-2, atol=0)
+    img = prefilter.irradiance_map(env, (8, 16))
+    assert img.shape == (3, 8, 16)
+
+
+def test_prefiltered_level_matches_brute_force_convolution():
+    env = _smooth_env(16, 32)
+    alpha = 0.3
+    pf = prefilter.Prefiltered(env[None], (0.0, alpha, 1.0))
+    img = pf.image(1)[0]
+    hl, wl = img.shape[-2:]
+    r = pano.directions(hl, wl, dtype=torch.float64).reshape(3, -1).T
+    fine = pano.directions(256, 512, dtype=torch.float64).reshape(3, -1).T
+    om = pano.solid_angles(256, 512, dtype=torch.float64).reshape(-1)
+    L = _bilinear_radiance(env, fine)
+    cos = r @ fine.T
+    nh = ((1 + cos) / 2).clamp(min=0).sqrt()
+    a2 = alpha * alpha
+    k = a2 / (math.pi * (nh * nh * (a2 - 1) + 1) ** 2) * cos.clamp(min=0) * om
+    brute = (k @ L) / k.sum(-1, keepdim=True)
+    got = img.reshape(3, -1).T
+    torch.testing.assert_close(got, brute, rtol=3e-3, atol=0)
+
+
+def test_constant_probe_stays_constant_at_every_level():
+    env = torch.full((2, 3, 16, 32), 2.5)
+    for lvl in prefilter.prefilter_probe(env):
+        torch.testing.assert_close(lvl, torch.full_like(lvl, 2.5), rtol=1e-4, atol=0)
+        assert lvl.shape[:2] == (2, 3)
+    irr = prefilter.irradiance_map(env)
+    torch.testing.assert_close(irr, torch.full((2, 3, 16, 32), 2.5), rtol=1e-4, atol=0)
+
+
+def test_level_coords_interpolate_in_alpha():
+    R = torch.tensor([0.0, math.sqrt(0.3), math.sqrt(0.45), 1.0])
+    i0, t = prefilter.level_coords(R, (0.0, 0.3, 0.6, 1.0))
+    assert i0.tolist() == [0, 1, 1, 2]
+    torch.testing.assert_close(t, torch.tensor([0.001 / 0.3, 0.0, 0.5, 1.0]), atol=1e-5, rtol=0)
+
+
+def test_cache_reuses_and_invalidates():
+    env = torch.rand(4, 3, 16, 32)
+    a = prefilter.prefiltered(env)
+    assert prefilter.prefiltered(env) is a
+    env.mul_(2)  # in-place change bumps the version: recompute
+    b = prefilter.prefiltered(env)
+    assert b is not a
+    torch.testing.assert_close(b.sh, 2 * a.sh)
+    g = env.clone().requires_grad_(True)
+    c = prefilter.prefiltered(g)
+    c.sh.sum().backward()
+    assert g.grad is not None and torch.isfinite(g.grad).all()
+    assert prefilter.prefiltered(g) is not c  # never cached while it needs gradients

@@ -1,0 +1,224 @@
+"""Headless insertion renders: what ``phyir insert`` (and the viewer's export button) writes.
+
+* :func:`load_input` — a scene file with probes is used as it is; anything else goes through the
+  model (:func:`phyir.predict`) first.
+* :func:`make_object` / :func:`place_object` — the object and where it goes (``--at``/``--position``).
+* :func:`render` — one view (equirect at the panorama's resolution, or a perspective crop) through
+  :class:`viewer.insertion.InsertionRenderer` on an EGL context.
+* :func:`write_passes` — linear EXR passes (``R,G,B`` composite, ``object.A`` alpha, ``shadow.Y``
+  matte, ``object.R,G,B`` object-only) and a tonemapped PNG; :func:`write_animation` — numbered
+  frames, an animated GIF preview and the frame-to-frame flicker on static background pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from phyir import pano, placement
+from phyir.errors import InputError, PhyIRError
+from phyir.scene import PanoScene
+from viewer.objects import SceneObject, object_mesh, parse_material
+from viewer.view import EquirectView, PerspectiveView
+
+GIF_WIDTH = 512
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def load_input(path: str, *, weights: str | None = None, log=print) -> PanoScene:
+    """The scene to insert into: its own layers if it has depth and probes, else the model's
+    (``weights``: a weights file for :func:`phyir.predict`, default the shipped ones)."""
+    from phyir.io import load_scene
+
+    scene = load_scene(path)
+    if scene.depth is not None and scene.probes is not None:
+        return scene
+    missing = [n for n in ("depth", "probes") if getattr(scene, n) is None]
+    log(f"{path}: no {' or '.join(missing)}: predicting the layers with the model (phyir.predict)")
+    try:
+        from phyir import predict
+    except ImportError as e:  # pragma: no cover - the inference module ships with phyir
+        raise InputError(path, f"has no {', '.join(missing)} and the model is not available ({e}); "
+                               "pass a scene file with depth and probes") from None
+    return predict(scene, weights=weights)
+
+
+def make_object(spec: str, scale: float, material: str) -> SceneObject:
+    if not (math.isfinite(scale) and scale > 0):
+        raise InputError("--scale", f"expected a positive number, got {scale!r}")
+    return SceneObject(object_mesh(spec), parse_material(material), scale=scale)
+
+
+def place_object(obj: SceneObject, scene: PanoScene, *, at: tuple[float, float] | None = None,
+                 position: tuple[float, float, float] | None = None, normal: torch.Tensor | None = None,
+                 log=print) -> None:
+    """``at``: pixel (column, row) whose surface the object stands on; ``position``: world centre."""
+    H, W = scene.size
+    if at is not None:
+        u, v = at
+        if not (0 <= u < W and 0 <= v < H):
+            raise InputError("--at", f"pixel ({u:g}, {v:g}) is outside the {W}x{H} panorama")
+        pl = placement.drop(scene, u + 0.5, v + 0.5, obj.base_offset(), normal=normal)
+    elif position is not None:
+        centre_local = obj.rotation @ (obj.mesh.bounding_sphere()[0] * obj.scale)
+        pl, free = placement.place_at_position(scene, np.asarray(position, np.float64), centre_local,
+                                               obj.rotation)
+        if not free:
+            log(f"warning: the object's centre {tuple(position)} is behind the scene surface: "
+                "it will be hidden")
+    else:
+        raise PhyIRError("give --at U,V, --position X,Y,Z or --path")
+    obj.position, obj.rotation, obj.support = pl.position, pl.rotation, (pl.contact, pl.normal)
+
+
+def path_points(waypoints: list[tuple[float, float]], frames: int, W: int) -> list[tuple[float, float]]:
+    """``frames`` pixel positions evenly spaced along a polyline (shortest way round the seam)."""
+    if len(waypoints) < 2 or frames < 2:
+        raise InputError("--path", "expected at least two points U1,V1:U2,V2 and --frames >= 2")
+    segs = []
+    for (u0, v0), (u1, v1) in zip(waypoints, waypoints[1:]):
+        du = (u1 - u0 + W / 2) % W - W / 2
+        segs.append((u0, v0, du, v1 - v0, math.hypot(du, v1 - v0)))
+    total = sum(s[4] for s in segs) or 1.0
+    out = []
+    for i in range(frames):
+        s = total * i / (frames - 1)
+        for u0, v0, du, dv, length in segs:
+            if s <= length or (u0, v0, du, dv, length) == segs[-1]:
+                t = min(s / length, 1.0) if length > 0 else 0.0
+                out.append(((u0 + t * du) % W, v0 + t * dv))
+                break
+            s -= length
+    return out
+
+
+def gl_context():
+    import moderngl
+
+    try:
+        return moderngl.create_standalone_context(backend="egl", require=330)
+    except Exception as e:  # noqa: BLE001 - any driver failure means no headless GL here
+        raise PhyIRError(f"cannot create a headless OpenGL context (EGL): {str(e).splitlines()[0]}") from None
+
+
+@dataclass
+class ViewSpec:
+    kind: str = "equirect"  # or "perspective"
+    size: tuple[int, int] | None = None  # (width, height); equirect default: the panorama's
+    fov: float = 60.0
+    yaw: float | None = None  # degrees; default: toward the first object
+    pitch: float | None = None
+
+    def build(self, scene: PanoScene, target: np.ndarray | None) -> tuple[EquirectView | PerspectiveView,
+                                                                           tuple[int, int]]:
+        H, W = scene.size
+        if self.kind == "equirect":
+            size = self.size or (W, H)
+            return EquirectView(center=(W / 2, H / 2), zoom=size[0] / W), size
+        if self.kind != "perspective":
+            raise InputError("--view", f"expected equirect or perspective, got {self.kind!r}")
+        yaw, pitch = self.yaw, self.pitch
+        if target is not None:
+            lon, lat = pano.dir_to_lonlat(torch.as_tensor(target, dtype=torch.float64))
+            yaw = math.degrees(float(lon)) if yaw is None else yaw
+            pitch = math.degrees(float(lat)) if pitch is None else pitch
+        return (PerspectiveView(fov=self.fov, yaw=math.radians(yaw or 0.0), pitch=math.radians(pitch or 0.0)),
+                self.size or (960, 720))
+
+
+def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
+    """uint8 sRGB of linear ``rgb [h,w,3]``: ``2^exposure`` x ACES (Narkowicz fit, as the viewer's
+    colour.glsl); ``exposure`` None: the median luminance maps to 0.18."""
+    from phyir.ldr import linear_to_srgb
+
+    x = np.maximum(rgb, 0)
+    if exposure is None:
+        lum = x @ LUMA
+        med = float(np.median(lum[lum > 0])) if (lum > 0).any() else 1.0
+        k = 0.18 / max(med, 1e-12)
+    else:
+        k = 2.0 ** exposure
+    x = x * k
+    x = np.clip((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0, 1)
+    return np.round(linear_to_srgb(x) * 255).astype(np.uint8)
+
+
+def write_passes(out: dict[str, np.ndarray], path: str, exposure: float | None,
+                 meta: dict | None = None) -> list[str]:
+    """``.exr``: the passes (and a PNG next to it); ``.png``: the tonemapped composite.  Atomic writes."""
+    from PIL import Image
+
+    from phyir import exr
+    from phyir.io import atomic_write
+
+    stem, ext = os.path.splitext(path)
+    ext = ext.lower()
+    if ext not in (".exr", ".png"):
+        raise InputError(path, "the output must be .exr (passes + PNG) or .png")
+    written = []
+    if ext == ".exr":
+        c, o = out["composite"], out["object"]
+        chans = {"R": c[..., 0], "G": c[..., 1], "B": c[..., 2], "object.A": out["alpha"],
+                 "shadow.Y": out["shadow"], **{f"object.{k}": o[..., i] for i, k in enumerate("RGB")}}
+        attrs = {f"phyir.{k}": str(v) for k, v in (meta or {}).items()}
+        with atomic_write(path) as tmp:
+            exr.write_parts(tmp, [("insert", attrs, {k: np.ascontiguousarray(v, np.float32)
+                                                     for k, v in chans.items()})])
+        written.append(path)
+    png = stem + ".png"
+    with atomic_write(png) as tmp:
+        Image.fromarray(tonemap(out["composite"], exposure), "RGB").save(tmp, format="PNG")
+    written.append(png)
+    return written
+
+
+def flicker(frames: list[dict[str, np.ndarray]]) -> dict[str, float]:
+    """Frame-to-frame change on static background pixels (neither object nor shadow in either
+    frame), relative to their mean luminance, and the relative jitter of the object's mean radiance
+    (its second difference along the path: a smooth change of lighting scores ~0)."""
+    diffs, means = [], []
+    for a, b in zip(frames, frames[1:]):
+        static = (a["alpha"] == 0) & (b["alpha"] == 0) & (a["shadow_delta"] == 0) & (b["shadow_delta"] == 0)
+        if static.any():
+            la, lb = a["composite"][static] @ LUMA, b["composite"][static] @ LUMA
+            diffs.append(float(np.abs(la - lb).mean() / max(float(la.mean()), 1e-12)))
+    for f in frames:
+        w = f["alpha"]
+        means.append(float((f["object"] @ LUMA).sum() / max(float(w.sum()), 1e-12)))
+    m = np.asarray(means)
+    scale = max(float(m.mean()), 1e-12)
+    jitter = float(np.abs(m[2:] - 2 * m[1:-1] + m[:-2]).max()) / scale if len(m) > 2 else 0.0
+    step = float(np.abs(np.diff(m)).max()) / scale if len(m) > 1 else 0.0
+    return {"static_background_change": max(diffs) if diffs else 0.0, "object_step": step,
+            "object_jitter": jitter}
+
+
+def write_animation(frames: list[dict[str, np.ndarray]], path: str, exposure: float | None) -> dict:
+    """Numbered frames ``<stem>_0000<ext>`` (passes as :func:`write_passes`), ``<stem>.gif`` and
+    ``<stem>_flicker.json``; one exposure for all frames (the first frame's when automatic)."""
+    from PIL import Image
+
+    from phyir.io import atomic_write
+
+    stem, ext = os.path.splitext(path)
+    if exposure is None:
+        lum = frames[0]["composite"] @ LUMA
+        exposure = math.log2(0.18 / max(float(np.median(lum[lum > 0])) if (lum > 0).any() else 1.0, 1e-12))
+    images = []
+    for i, f in enumerate(frames):
+        write_passes(f, f"{stem}_{i:04d}{ext}", exposure)
+        im = Image.fromarray(tonemap(f["composite"], exposure), "RGB")
+        if im.width > GIF_WIDTH:
+            im = im.resize((GIF_WIDTH, round(im.height * GIF_WIDTH / im.width)), Image.BILINEAR)
+        images.append(im)
+    with atomic_write(stem + ".gif") as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=80, loop=0)
+    stats = flicker(frames)
+    with atomic_write(stem + "_flicker.json") as tmp, open(tmp, "w") as fh:
+        json.dump({"frames": len(frames), **stats}, fh, indent=2)
+    return stats

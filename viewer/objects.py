@@ -1,0 +1,285 @@
+"""Objects to insert: meshes (trimesh: OBJ, PLY, STL, OFF, GLB, ...), built-in unit primitives and
+materials with the supplement's Table 2 presets.  No GL here: the GPU side is viewer/insertion.py.
+
+Units and axes: a mesh keeps its own units (metres) and its local +y is its up axis (placement
+stands it on surfaces along +y).  Primitives are unit-size: ``sphere`` of radius 1, ``cube``
+spanning [-1, 1]^3, ``cylinder`` of radius 1 from y = -1 to 1; a scale multiplies them.
+
+Loading outcomes (documented in docs/insertion.md, tested in tests/test_objects.py):
+* missing or unreadable file, no triangles, NaN/Inf vertices, more than :data:`MAX_FACES`
+  triangles, zero or absurd size: :class:`~phyir.errors.InputError` with a one-line message;
+* non-manifold or open meshes load as they are (rendering does not need a closed surface); their
+  ambient-occlusion proxies are fitted to surface samples;
+* missing or broken (zero, NaN) vertex normals are computed from the faces.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from phyir.errors import InputError
+from phyir.metrics import RELIGHT_MATERIALS
+
+MAX_FACES = 5_000_000
+MAX_EXTENT = 1000.0  # metres
+MIN_EXTENT = 1e-5
+PRIMITIVES = ("sphere", "cube", "cylinder")
+PROXY_COUNT = 8
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+
+
+# ---------------------------------------------------------------------------------------------
+# materials
+
+
+@dataclass
+class Material:
+    """The BRDF parameters of phyir.brdf: base colour (linear RGB), roughness R, metalness M."""
+
+    base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    roughness: float = 0.5
+    metallic: float = 0.0
+
+    def as_text(self) -> str:
+        return ",".join(f"{x:g}" for x in (*self.base_color, self.roughness, self.metallic))
+
+
+# supplement Table 2 (the relighting spheres), names as on the command line
+PRESETS: dict[str, Material] = {name.replace("_", "-"): Material(tuple(b), r, m)
+                                for name, (b, r, m) in RELIGHT_MATERIALS.items()}
+
+
+def parse_material(text: str) -> Material:
+    """A preset name (diffuse, matte-silver, mirror-silver) or ``B,B,B,R,M`` with values in [0, 1]."""
+    key = text.strip().lower().replace("_", "-")
+    if key in PRESETS:
+        return copy.deepcopy(PRESETS[key])
+    parts = text.split(",")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        vals = []
+    if len(vals) != 5 or not all(np.isfinite(vals)) or not all(0 <= x <= 1 for x in vals):
+        raise InputError("--material", f"expected one of {', '.join(PRESETS)} or B,B,B,R,M with "
+                                       f"values in [0, 1], got {text!r}")
+    return Material(tuple(vals[:3]), vals[3], vals[4])  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# meshes
+
+
+@dataclass
+class Mesh:
+    """Triangles with per-vertex normals (float32, local frame, +y up)."""
+
+    vertices: np.ndarray  # [V, 3]
+    normals: np.ndarray  # [V, 3] unit
+    faces: np.ndarray  # [F, 3] uint32
+    name: str = "mesh"
+    proxies: np.ndarray | None = None  # [K, 4] spheres (centre, radius) for ambient occlusion
+    closed: bool = False  # watertight with outward, consistent winding: back faces can be culled
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.vertices.min(0), self.vertices.max(0)
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """Centre of the bounding box and the radius reaching every vertex."""
+        lo, hi = self.bounds
+        c = 0.5 * (lo + hi)
+        return c, float(np.sqrt(((self.vertices - c) ** 2).sum(1).max()))
+
+    def proxy_spheres(self) -> np.ndarray:
+        """Spheres ``[K, 4]`` approximating the volume (ambient occlusion), computed once."""
+        if self.proxies is None:
+            self.proxies = fit_proxies(self)
+        return self.proxies
+
+
+def _finish(vertices: np.ndarray, normals: np.ndarray | None, faces: np.ndarray, name: str,
+            where: str) -> Mesh:
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0 or len(v) == 0:
+        raise InputError(where, "the mesh has no triangles")
+    if len(f) > MAX_FACES:
+        raise InputError(where, f"{len(f):,} triangles is more than the limit of {MAX_FACES:,}; "
+                                "decimate the mesh first")
+    bad = ~np.isfinite(v).all(1)
+    if bad.any():
+        raise InputError(where, f"{int(bad.sum())} vertices are NaN or infinite")
+    if f.min() < 0 or f.max() >= len(v):
+        raise InputError(where, "faces refer to vertices that do not exist")
+    extent = float((v.max(0) - v.min(0)).max())
+    if not MIN_EXTENT <= extent <= MAX_EXTENT:
+        raise InputError(where, f"the mesh is {extent:.3g} m across; expected {MIN_EXTENT:g} to "
+                                f"{MAX_EXTENT:g} m (meshes keep their units: metres)")
+    n = _vertex_normals(v, f) if normals is None else np.asarray(normals, dtype=np.float64)
+    length = np.linalg.norm(n, axis=1)
+    broken = ~np.isfinite(length) | (length < 1e-8)
+    if broken.any():
+        n = np.where(broken[:, None], _vertex_normals(v, f), n)
+        length = np.linalg.norm(n, axis=1)
+    n = n / np.maximum(length, 1e-12)[:, None]
+    n[~np.isfinite(n).all(1)] = (0.0, 1.0, 0.0)
+    return Mesh(v.astype(np.float32), n.astype(np.float32), f.astype(np.uint32), name)
+
+
+def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (vertices of degenerate faces only get (0, 1, 0))."""
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 x area
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 1e-20, n / np.maximum(length, 1e-30), np.array([0.0, 1.0, 0.0]))
+
+
+def load_mesh(path: str | os.PathLike) -> Mesh:
+    """Read a mesh file (every part of a scene file merged into one mesh); see the module doc."""
+    import trimesh
+
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise InputError(p, "no such file")
+    try:
+        loaded = trimesh.load(p, force="mesh", process=False)
+    except Exception as e:  # trimesh raises many types for bad files
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(p, f"cannot read the mesh: {msg}") from None
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise InputError(p, "the file holds no triangle mesh")
+    # normals from the faces: area-weighted over shared vertices, flat where the file splits them
+    mesh = _finish(np.asarray(loaded.vertices), None, np.asarray(loaded.faces), os.path.basename(p), p)
+    welded = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True, validate=False)
+    mesh.closed = bool(welded.is_watertight and welded.is_winding_consistent and welded.volume > 0)
+    return mesh
+
+
+def primitive(name: str) -> Mesh:
+    """A unit primitive (see the module doc) with sharp edges where it has them."""
+    import trimesh
+
+    if name == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+        v = np.asarray(m.vertices)
+        mesh = _finish(v, v / np.linalg.norm(v, axis=1, keepdims=True), m.faces, name, name)
+        mesh.proxies = np.array([[0.0, 0.0, 0.0, 1.0]], dtype=np.float32)
+        mesh.closed = True
+        return mesh
+    if name == "cube":
+        m = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    elif name == "cylinder":
+        m = trimesh.creation.cylinder(radius=1.0, height=2.0, sections=64)
+        m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0)))  # z -> y
+    else:
+        raise InputError("--object", f"unknown primitive {name!r}; expected {', '.join(PRIMITIVES)} "
+                                     "or a mesh file")
+    # split vertices so flat faces keep flat normals (angle threshold: sharp edges)
+    flat = m.copy()
+    flat.unmerge_vertices()
+    fv = np.asarray(flat.vertices)
+    fn = np.repeat(np.asarray(flat.face_normals), 3, axis=0)
+    if name == "cylinder":  # smooth side: radial normals where the face is not a cap
+        radial = fv * np.array([1.0, 0.0, 1.0])
+        side = np.abs(fn[:, 1]) < 0.5
+        fn = np.where(side[:, None], radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True),
+                                                         1e-12), fn)
+    mesh = _finish(fv, fn, np.arange(len(fv)).reshape(-1, 3), name, name)
+    mesh.closed = True
+    return mesh
+
+
+def object_mesh(spec: str) -> Mesh:
+    """``sphere|cube|cylinder`` or a mesh file path."""
+    if spec in PRIMITIVES:
+        return primitive(spec)
+    if os.path.splitext(spec)[1].lower() not in MESH_SUFFIXES and not os.path.exists(spec):
+        raise InputError("--object", f"expected {', '.join(PRIMITIVES)} or a mesh file "
+                                     f"({', '.join(MESH_SUFFIXES)}), got {spec!r}")
+    return load_mesh(spec)
+
+
+def fit_proxies(mesh: Mesh, count: int = PROXY_COUNT, seed: int = 0) -> np.ndarray:
+    """``[K, 4]`` spheres covering the mesh: k-means of surface samples; each radius is the RMS
+    distance of its cluster's samples (a sphere through the cluster's surface)."""
+    rng = np.random.default_rng(seed)
+    v, f = mesh.vertices.astype(np.float64), mesh.faces.astype(np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    n = 2048
+    pick = rng.choice(len(f), size=n, p=area / area.sum()) if area.sum() > 0 else rng.integers(0, len(f), n)
+    r1, r2 = rng.random((2, n, 1))
+    s = np.sqrt(r1)
+    pts = (1 - s) * a[pick] + s * (1 - r2) * b[pick] + s * r2 * c[pick]
+    k = min(count, n)
+    centres = pts[rng.choice(n, k, replace=False)]
+    for _ in range(12):
+        lab = ((pts[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+        for j in range(k):
+            if (lab == j).any():
+                centres[j] = pts[lab == j].mean(0)
+    lab = ((pts[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+    out = []
+    for j in range(k):
+        q = pts[lab == j]
+        if len(q):
+            out.append((*centres[j], float(np.sqrt(((q - centres[j]) ** 2).sum(1).mean()))))
+    return np.asarray(out, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# objects in the scene
+
+
+@dataclass
+class SceneObject:
+    """One inserted object: a mesh, its material and its placement (world frame, metres)."""
+
+    mesh: Mesh
+    material: Material = field(default_factory=Material)
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))  # of the mesh's local origin
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    scale: float = 1.0
+    visible: bool = True
+    name: str = ""
+    support: tuple[np.ndarray, np.ndarray] | None = None  # (point, normal) of the surface it rests on
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=np.float64)
+        self.rotation = np.asarray(self.rotation, dtype=np.float64)
+        if not self.name:
+            self.name = self.mesh.name
+
+    def model_matrix(self) -> np.ndarray:
+        """4x4 local -> world."""
+        m = np.eye(4)
+        m[:3, :3] = self.rotation * self.scale
+        m[:3, 3] = self.position
+        return m
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        c, r = self.mesh.bounding_sphere()
+        return self.rotation @ (c * self.scale) + self.position, r * self.scale
+
+    def world_proxies(self) -> np.ndarray:
+        p = self.mesh.proxy_spheres().astype(np.float64)
+        out = np.empty_like(p)
+        out[:, :3] = p[:, :3] @ (self.rotation * self.scale).T + self.position
+        out[:, 3] = p[:, 3] * self.scale
+        return out
+
+    def base_offset(self) -> float:
+        """Distance from the local origin down to the lowest vertex along local +y, scaled."""
+        return -float(self.mesh.vertices[:, 1].min()) * self.scale
+
+    def duplicate(self) -> SceneObject:
+        return SceneObject(self.mesh, copy.deepcopy(self.material), self.position.copy(),
+                           self.rotation.copy(), self.scale, self.visible, self.name + " copy",
+                           None if self.support is None else (self.support[0].copy(), self.support[1].copy()))
+
