@@ -6,7 +6,8 @@ the bare panorama frame measured in the same run (software GL on this machine: M
 Each dragging frame moves the object along the floor (phyir.placement.Drag, as a mouse drag does),
 recomputes its lighting (probe interpolation, lights, irradiance) and redraws impostor, shadow maps
 and composite at the DRAGGING quality; the still frame redraws at FULL quality with cached lighting.
-Times are medians of ``--frames`` frames, each ended by ``ctx.finish()``.
+Times are medians of ``--frames`` frames, each ended by ``ctx.finish()``; bare and dragging frames
+alternate so that both see the same load when other processes share the CPU.
 """
 
 from __future__ import annotations
@@ -71,7 +72,6 @@ def main() -> int:
 
     for _ in range(3):
         draw()
-    bare = [timed(draw) for _ in range(args.frames)]
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "ball.ply")
@@ -81,7 +81,6 @@ def main() -> int:
     ins = InsertionRenderer(ctx)
     ins.set_scene(scene)
     hook = InsertionPass(ins, [obj])
-    renderer.overlay_passes.insert(0, hook)
     # start on the floor 2 m in front of the camera, drag sideways along the floor
     start = np.array([-0.6, -1.5, -1.4])
     su, sv, _ = pano.points_to_uv(torch.as_tensor(start), H, W)
@@ -89,9 +88,15 @@ def main() -> int:
     obj.position, obj.rotation, obj.support = pl.position, pl.rotation, (pl.contact, pl.normal)
     drag = placement.Drag(scene, pl.contact, (float(su), float(sv) - 8), obj.base_offset())
     hook.dragging = True
+    renderer.overlay_passes.insert(0, hook)
     draw()
-    dragging, cpu = [], []
+    # bare and dragging frames alternate, so both see the same load on a shared machine
+    bare, dragging, cpu = [], [], []
     for k in range(args.frames):
+        renderer.overlay_passes.remove(hook)
+        bare.append(timed(draw))
+        renderer.overlay_passes.insert(0, hook)
+
         def step(k=k):
             p = drag.move((float(su) + 1.5 * k, float(sv) - 8))
             obj.position, obj.rotation, obj.support = p.position, p.rotation, (p.contact, p.normal)

@@ -110,26 +110,33 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def time_call(fn: Callable[[], object], device: str, repeats: int) -> dict[str, float]:
-    """Median / quartiles / min / max wall time and median CPU time (seconds) of ``fn``.
-
-    One warm-up call first; calls under a second are repeated at least 7 times.
-    """
-    t0 = time.perf_counter()
-    fn()
-    _sync(device)
-    if time.perf_counter() - t0 < 1.0:
-        repeats = max(repeats, 7)
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        _sync(device)
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
+def _stats(wall: list[float], cpu: list[float]) -> dict[str, float]:
     q = statistics.quantiles(wall, n=4) if len(wall) > 1 else [wall[0]] * 3
     return {"median_s": statistics.median(wall), "q1_s": q[0], "q3_s": q[2], "min_s": min(wall),
-            "max_s": max(wall), "cpu_s": statistics.median(cpu), "cpu_min_s": min(cpu), "repeats": repeats}
+            "max_s": max(wall), "cpu_s": statistics.median(cpu), "cpu_min_s": min(cpu), "repeats": len(wall)}
+
+
+def time_interleaved(calls: dict[str, Callable[[], object]], device: str,
+                     repeats: int) -> dict[str, dict[str, float]]:
+    """Wall / CPU time statistics of each call, timed in turns (A B C A B C ...) after one warm-up
+    each, so that a change of machine load hits every call alike.  Calls under a second are
+    repeated at least 7 times."""
+    t0 = time.perf_counter()
+    for fn in calls.values():
+        fn()
+        _sync(device)
+    if (time.perf_counter() - t0) / len(calls) < 1.0:
+        repeats = max(repeats, 7)
+    wall: dict[str, list[float]] = {k: [] for k in calls}
+    cpu: dict[str, list[float]] = {k: [] for k in calls}
+    for _ in range(repeats):
+        for k, fn in calls.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            _sync(device)
+            wall[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)
+    return {k: _stats(wall[k], cpu[k]) for k in calls}
 
 
 def rel_rmse(x: Tensor, ref: Tensor, mask: Tensor | None = None) -> float:
@@ -252,25 +259,34 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
     ref = Reference(scene, cfg["ref_spp"], mask)
     log(f"  reference: quadrature diffuse + {cfg['ref_spp']} spp specular in "
         f"{time.perf_counter() - t0:.1f} s, noise {ref.noise['image']:.1e} (image)")
-    rows = []
+    configs = [("prefiltered", 1)] + [("uniform", n) for n in cfg["uniform_spp"]] + \
+        [("importance", n) for n in cfg["is_spp"]]
 
-    def measure(method: str, spp: int) -> None:
-        def call():
+    def make(method: str, spp: int) -> Callable[[], dict[str, Tensor]]:
+        def call() -> dict[str, Tensor]:
             if method == "prefiltered":
                 prefilter._cache.clear()  # time the prefiltering too, every call
             return render_scene(scene, spp=spp, method=method, seed=7)
-        out = call()
-        row = {"method": method, "spp": spp if method != "prefiltered" else 0,
-               **time_call(call, device, cfg["repeats"]), **ref.errors(out)}
+        return call
+
+    calls = {c: make(*c) for c in configs}
+    errors, first = {}, {}
+    for c, fn in calls.items():  # errors, and the cost of one call to group the timings
+        t0 = time.perf_counter()
+        errors[c] = ref.errors(fn())
+        first[c] = time.perf_counter() - t0
+    times = {}
+    for fast in (True, False):  # interleaved timing; short calls get more repeats
+        group = {c: fn for c, fn in calls.items() if (first[c] < 1.0) == fast}
+        if group:
+            times.update(time_interleaved(group, device, cfg["repeats"]))
+    rows = []
+    for c in configs:
+        method, spp = c
+        row = {"method": method, "spp": spp if method != "prefiltered" else 0, **times[c], **errors[c]}
         rows.append(row)
         log(f"  {method:<12} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f} specular {row['err_specular']:.4f}")
-
-    measure("prefiltered", 1)
-    for spp in cfg["uniform_spp"]:
-        measure("uniform", spp)
-    for spp in cfg["is_spp"]:
-        measure("importance", spp)
     return {"reference_spp": cfg["ref_spp"], "reference_noise": ref.noise, "rows": rows}
 
 
@@ -310,6 +326,13 @@ def summarize(res: dict) -> dict:
     return out
 
 
+def _sample_count(classes: dict[str, Tensor], spp: int, rough_all: bool = False) -> int:
+    """Direction samples (and reflected look-ups) a frame takes with these pixel classes."""
+    half = (spp + 1) // 2
+    return (spp * len(classes["std"]) + (spp if rough_all else half) * len(classes["rough"])
+            + half * len(classes["mirror_d"]) + len(classes["mirror"]))
+
+
 def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], None]) -> list[dict]:
     """Time saved and error introduced by each skip (importance sampling at ``skip_spp``).
 
@@ -332,20 +355,27 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
 
     out = {}
     variants["rough_all_cosine"] = {"emissive", "rough"}
-    for name, sk in variants.items():
-        def call(sk=sk, name=name):
+
+    def make(name: str, sk: set[str]) -> Callable[[], dict[str, Tensor]]:
+        def call() -> dict[str, Tensor]:
             old, render.ROUGH_ALL_COSINE = render.ROUGH_ALL_COSINE, name == "rough_all_cosine"
             try:
                 return render_scene(scene, spp=spp, seed=7, skips=sk)
             finally:
                 render.ROUGH_ALL_COSINE = old
-        r = call()
-        row = {**time_call(call, device, max(cfg["repeats"], 7)), **ref.errors(r)}
+        return call
+
+    calls = {name: make(name, sk) for name, sk in variants.items()}
+    times = time_interleaved(calls, device, max(cfg["repeats"], 7))
+    for name, sk in variants.items():
+        r = calls[name]()
+        row = {**times[name], **ref.errors(r),
+               "samples": _sample_count(pixel_classes(scene, sk), spp, name == "rough_all_cosine")}
         for a, m in affected.items():
             row[f"err_{a}_pixels"] = rel_rmse(r["image"], ref.layers["image"], m)
         row["err_rough_all_cosine_pixels"] = row["err_rough_pixels"]
         out[name] = row
-        log(f"  skips {name:<9} {row['median_s'] * 1e3:9.1f} ms  CPU {row['cpu_s'] * 1e3:9.1f} ms  "
+        log(f"  skips {name:<16} {row['median_s'] * 1e3:9.1f} ms  CPU min {row['cpu_min_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f}")
     total = scene.size[0] * scene.size[1]
     em = scene.masks.get("emission")
@@ -357,7 +387,9 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
         r = out[name]
         # emissive: compared with no skips; the others: on top of the emissive skip
         prev = out["none"] if name == "emissive" else out["emissive"]
-        entry = {"skip": name, "fraction": frac[name], "time_saved_s": prev["median_s"] - r["median_s"],
+        entry = {"skip": name, "fraction": frac[name],
+                 "samples_saved_frac": 1 - r["samples"] / prev["samples"],
+                 "time_saved_s": prev["median_s"] - r["median_s"],
                  "time_saved_frac": 1 - r["median_s"] / prev["median_s"],
                  "cpu_saved_s": prev["cpu_min_s"] - r["cpu_min_s"],
                  "cpu_saved_frac": 1 - r["cpu_min_s"] / prev["cpu_min_s"],
@@ -519,10 +551,11 @@ def format_table(result: dict) -> str:
         lines.append("")
     sk = result["skips"][-1]["summary"]
     lines += [f"skips (mixed scene, importance {cfg['skip_spp']} spp)", "",
-              "| skip | pixels | wall time saved (median) | CPU time saved (min) | err image with / without "
-              "| err on its pixels with / without |", "| --- | ---: | ---: | ---: | ---: | ---: |"]
+              "| skip | pixels | samples saved | wall time saved (median) | CPU time saved (min) "
+              "| err image with / without | err on its pixels with / without |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for e in sk:
-        lines.append(f"| {e['skip']} | {100 * e['fraction']:.1f}% | "
+        lines.append(f"| {e['skip']} | {100 * e['fraction']:.1f}% | {100 * e['samples_saved_frac']:.1f}% | "
                      f"{e['time_saved_s'] * 1e3:.0f} ms ({100 * e['time_saved_frac']:.0f}%) | "
                      f"{e['cpu_saved_s'] * 1e3:.0f} ms ({100 * e['cpu_saved_frac']:.0f}%) | "
                      f"{e['err_image']:.4f} / {e['err_image_without']:.4f} | "

@@ -26,7 +26,8 @@ from phyir.synth.tracer import TraceSettings, trace
 @dataclass
 class Reference:
     scene: PanoScene  # the room without the sphere: GT layers and probes (what insertion gets)
-    with_sphere: torch.Tensor  # [3, H, W] the room traced with the sphere
+    without: torch.Tensor  # [3, H, W] the room traced without the sphere at the reference's settings
+    with_sphere: dict[str, torch.Tensor]  # material name -> [3, H, W] the room traced with the sphere
     centre: np.ndarray  # camera frame, metres
     radius: float
     seconds: float
@@ -80,12 +81,13 @@ def floor_spot(scene: PanoScene, distance: tuple[float, float] = (1.3, 2.2), cle
 
 
 def trace_reference(seed: int, index: int, radius: float,
-                    material: tuple[tuple[float, float, float], float, float], *,
+                    materials: dict[str, tuple[tuple[float, float, float], float, float]], *,
                     size: tuple[int, int] = (128, 256), probe_grid: tuple[int, int] = (16, 32),
                     probe_size: tuple[int, int] = (16, 32), spp: int = 64, ref_spp: int = 256,
                     sampler_seed: int = 7) -> Reference:
-    """Trace room ``(seed, index)`` without the sphere (layers + probes) and with it (image), the
-    sphere of ``radius`` resting on a free floor spot in front of the camera."""
+    """Trace room ``(seed, index)`` without the sphere (layers + probes at ``spp``; image at
+    ``ref_spp``) and with a sphere of each material (image at ``ref_spp``), the sphere of ``radius``
+    resting on a free floor spot in front of the camera."""
     import time
 
     from phyir.placement import surface_at
@@ -101,8 +103,10 @@ def trace_reference(seed: int, index: int, radius: float,
     contact = surface_at(scene, u, v).point
     centre = contact + np.array([0.0, radius, 0.0])
     st_ref = TraceSettings(size=size, probe_grid=None, spp=ref_spp)
-    with_sphere = trace(add_sphere(room, centre, radius, material).build(), st_ref, seed=sampler_seed).image
-    return Reference(scene, with_sphere, centre, radius, time.perf_counter() - t0)
+    without = trace(room.build(), st_ref, seed=sampler_seed).image
+    with_sphere = {name: trace(add_sphere(room, centre, radius, m).build(), st_ref, seed=sampler_seed).image
+                   for name, m in materials.items()}
+    return Reference(scene, without, with_sphere, centre, radius, time.perf_counter() - t0)
 
 
 def sphere_mask(centre: np.ndarray, radius: float, depth: torch.Tensor) -> torch.Tensor:

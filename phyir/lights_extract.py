@@ -44,6 +44,7 @@ class Light:
     power: Tensor  # [3] sum of radiance x solid angle (irradiance at normal incidence)
     solid_angle: float  # steradians
     fraction: float  # share of the probe's luminous power (before fading)
+    peak: Tensor | None = None  # [3, h, w] its radiance in the probe (power = sum of peak x solid angle)
 
     @property
     def spread(self) -> float:
@@ -131,7 +132,8 @@ def extract_lights(probe: Tensor, *, max_lights: int = MAX_LIGHTS, threshold: fl
         s = _smoothstep(min_fraction, full_fraction, frac) if rank < max_lights else 0.0
         residual = torch.where(m, residual + (1 - s) * peak, residual)
         if s > 0:
-            power = (peak * omega * m).sum((1, 2)) * s
-            lights.append(Light(direction=d.to(probe.dtype), power=power.to(probe.dtype),
-                                solid_angle=sa, fraction=frac))
+            share = peak * m * s
+            power = (share * omega).sum((1, 2))
+            lights.append(Light(direction=d.to(probe.dtype), power=power.to(probe.dtype), solid_angle=sa,
+                                fraction=frac, peak=share.to(probe.dtype)))
     return lights, residual.to(probe.dtype)

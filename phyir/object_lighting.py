@@ -191,7 +191,7 @@ class PlacedLight:
 
 AXES = ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0),
         (0.0, 0.0, -1.0))  # the ambient cube's order (shaders/composite.frag)
-HALO = 4.0  # receivers within this many bounding radii get an object's ambient occlusion
+HALO = 3.0  # an object's ambient occlusion fades out at this many bounding radii
 
 
 @dataclass
@@ -206,7 +206,8 @@ class ObjectLighting:
     peak_dirs: Tensor  # [K, 3]
     peak_power: Tensor  # [K, 3]
     ambient: Tensor  # [6, 3] irradiance / pi around +-x, +-y, +-z (an ambient cube)
-    ambient_residual: Tensor  # [6, 3] the same without the dominant lights (what occlusion removes)
+    ambient_residual: Tensor  # [6, 3] the same without the dominant lights
+    residual: Tensor  # [3, h, w] the probe without its dominant lights (what occlusion removes)
     lights: list[PlacedLight] = field(default_factory=list)
     reach: Tensor | None = None  # [P, 3] points bounding what the object changes (halo, shadows)
 
@@ -255,15 +256,40 @@ def place_lights(lights: list[Light], centre: Tensor, surface: DepthSurface | No
     return out, torch.cat([halo, shadow])
 
 
+def correct_light_distance(field: ProbeField, centre: Tensor, probe: Tensor, placed: list[PlacedLight]
+                           ) -> Tensor:
+    """Near lights seen from the probes that were blended are brighter seen from ``centre`` when it is
+    nearer to them (the inverse-square law): each placed light's part of the probe and its power
+    are scaled by sum_i w_i |L - p_i|^2 / |L - centre|^2 over the blended probes (clamped to
+    [1/4, 4]).  Returns the corrected probe; ``placed`` is updated in place."""
+    idx, wgt = field.weights(centre)
+    pos = field.positions[idx]  # [k, 3]
+    c = centre.double().reshape(1, 3)
+    for pl in placed:
+        if pl.light.peak is None or pl.distance >= FAR_LIGHT:
+            continue
+        lp = pl.position.double().reshape(1, 3)
+        near = float(((lp - c) ** 2).sum())
+        seen = float((wgt * ((lp - pos) ** 2).sum(1)).sum())
+        k = min(max(seen / max(near, 1e-9), 0.25), 4.0)
+        probe = probe + (k - 1) * pl.light.peak.to(probe.dtype)
+        pl.light.power = pl.light.power * k
+        pl.light.peak = pl.light.peak * k
+    return probe.clamp(min=0)
+
+
 def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | None = None,
                     max_lights: int = 4, radius: float = 0.0, steps: int = 32) -> ObjectLighting:
-    """The probe at ``centre`` (interpolated), its maps and its placed dominant lights; ``radius``:
-    the object's bounding radius (for the reach points), ``steps``: depth-marching steps."""
+    """The probe at ``centre`` (interpolated, its near lights corrected for the distance between
+    the probes and ``centre``), its maps and its placed dominant lights; ``radius``: the object's
+    bounding radius (for the reach points), ``steps``: depth-marching steps."""
     probe = field.probe_at(centre)
     lights, residual = extract_lights(probe, max_lights=max_lights)
-    dirs, power, spec = peak_samples(probe)
     placed, reach = place_lights(lights, centre, surface, radius, steps=steps)
+    probe = correct_light_distance(field, centre, probe, placed)
+    dirs, power, spec = peak_samples(probe)
     return ObjectLighting(centre=centre.float(), probe=probe, mips=probe_mips(probe),
                           irradiance=irradiance_map(probe), spec_mips=probe_mips(spec), peak_dirs=dirs,
                           peak_power=power, ambient=irradiance_at(probe, AXES),
-                          ambient_residual=irradiance_at(residual, AXES), lights=placed, reach=reach.float())
+                          ambient_residual=irradiance_at(residual, AXES), residual=residual, lights=placed,
+                          reach=reach.float())

@@ -5,19 +5,26 @@
 // as a receiver of the objects' shadows:
 //   dE = - sum_lights E_j(x) (1 - V_j(x))                        dominant lights, shadow maps (PCSS)
 //        + sum_proxies pi FF_k(x) (L_object(w_k) - L_residual(w_k))   occlusion near contact + bounce
-// I_all - I_pl = albedo dE / pi is added to the background (the differential of D.2); the object's
-// pixels take its radiance (I_all or I_obj, chosen when object.frag ran).
+// (L_residual: the object's probe without its lights, averaged over the proxy's cone) and, for the
+// specular lobe of glossy receivers, the object replacing what the lobe reflected:
+//   dS = (F0 A + B) overlap(lobe, proxies) (L_object - L_probe(r))
+// I_all - I_pl = B (1 - M) dE / pi + dS is added to the background (the differential of D.2); the
+// object's pixels take its radiance (I_all or I_obj, chosen when object.frag ran).
 // VIEWER 0 (export): background from the panorama (scene_image); linear composite, object-only and
 // shadow-matte targets.  VIEWER 1 (the viewer's overlay pass): background = the layer exactly as
 // viewer/renderer.py samples it (layer.glsl), output in display colours (display.glsl).
 #include "scene.glsl"
 #include "view.glsl"
+#include "occlusion.glsl"
 #ifndef VIEWER
 #define VIEWER 0
 #endif
 #if VIEWER
 #include "layer.glsl"
 #include "display.glsl"
+#endif
+#ifndef GLOSSY_RECEIVERS
+#define GLOSSY_RECEIVERS 1
 #endif
 #define MAX_OBJECTS 8
 #define MAX_LIGHTS 16
@@ -31,9 +38,13 @@ uniform int n_objects;
 uniform mat4 imp_vp[MAX_OBJECTS];     // world -> clip of each object's impostor camera
 uniform vec4 imp_tile[MAX_OBJECTS];   // (s0, t0, ds, dt) of its tile in imp_atlas
 uniform vec4 obj_sphere[MAX_OBJECTS]; // bounding sphere (centre, radius)
-uniform float obj_reach[MAX_OBJECTS]; // receivers farther than this from the centre get no occlusion
+uniform float obj_reach[MAX_OBJECTS]; // occlusion fades out toward this distance from the centre
 uniform vec3 amb_full[MAX_OBJECTS * 6];  // irradiance / pi of the object's probe around +-x, +-y, +-z
 uniform vec3 amb_res[MAX_OBJECTS * 6];   // the same without the dominant lights
+uniform sampler2DArray obj_probes;       // layer 2k: object k's probe without its lights, 2k+1: the probe
+uniform sampler2D scene_rm;              // receivers' roughness (r) and metalness (g)
+uniform sampler2D dfg;                   // (A, B) over (n.v, R), as in ibl.glsl
+uniform float residual_texel;            // solid angle of a level-0 texel at the equator
 uniform vec3 obj_albedo[MAX_OBJECTS];    // diffuse + specular albedo: what the object reflects
 
 uniform int n_lights;
@@ -83,24 +94,6 @@ vec3 ambient_res(int k, vec3 d) {
     int o = 6 * k;
     return cube_blend(amb_res[o], amb_res[o + 1], amb_res[o + 2], amb_res[o + 3], amb_res[o + 4],
                       amb_res[o + 5], d);
-}
-
-// fraction of the cosine-weighted hemisphere a sphere covers (horizon-clipped form factor;
-// Snyder 1996 / Lagarde & de Rousiers 2014), cos_t toward its centre, sin2_s = (r / d)^2
-float sphere_form_factor(float cos_t, float sin2_s) {
-    sin2_s = min(sin2_s, 0.9999);
-    cos_t = clamp(cos_t, -1.0, 1.0);
-    float sin_t = sqrt(max(1.0 - cos_t * cos_t, 1e-12));
-    float e;
-    if (cos_t * cos_t > sin2_s) {
-        e = PI * sin2_s * max(cos_t, 0.0);
-    } else {
-        float x = sqrt(1.0 / sin2_s - 1.0);
-        float y = clamp(-x * cos_t / sin_t, -1.0, 1.0);
-        float sy = sin_t * sqrt(1.0 - y * y);
-        e = (cos_t * acos(y) - x * sy) * sin2_s + atan(sy, x);
-    }
-    return clamp(e / PI, 0.0, 1.0);
 }
 
 float shadow_distance(int j, vec2 ndc) {
@@ -164,6 +157,14 @@ void main() {
             ivec2 ij = scene_texel(d);
             vec3 x = depth * d;
             vec3 n = normalize(texelFetch(scene_normal, ij, 0).xyz);
+            vec2 rm = texelFetch(scene_rm, ij, 0).rg;
+            vec3 base = texelFetch(scene_albedo, ij, 0).rgb;
+            vec3 view = -d;
+            vec3 rs = 2.0 * dot(view, n) * n - view;
+            float lobe_w = max(2.0 * atan(0.64 * max(rm.r * rm.r, 1e-3)) * 1.5, 0.02);
+            vec2 ab = texture(dfg, vec2(clamp(dot(n, view), 0.0, 1.0), rm.r)).rg;
+            vec3 spec_albedo = (0.04 * (1.0 - rm.g) + rm.g * base) * ab.x + ab.y;
+            vec3 dS = vec3(0.0);
             vec3 dE = vec3(0.0);
             vec3 e_pl = vec3(0.0);
             bool near_any = false;
@@ -173,23 +174,50 @@ void main() {
                 near_any = true;
                 e_pl = max(e_pl, PI * ambient_full(k, n));
                 // ambient occlusion and bounce from the proxies of object k: the radiance it hides
-                // (the residual, seen toward the object) and what it sends back
+                // (its probe's residual over each proxy's cone) and what it sends back
                 float ff_sum = 0.0, keep = 1.0;
+                vec3 acc = vec3(0.0);
                 for (int q = 0; q < n_proxies; ++q) {
                     if (proxy_obj[q] != k) continue;
                     vec3 w = proxy[q].xyz - x;
                     float dd = max(dot(w, w), 1e-12);
                     float sin2 = proxy[q].w * proxy[q].w / dd;
                     if (sin2 < 1e-3) continue;  // covers < 0.1% of the hemisphere
-                    float ff = sphere_form_factor(dot(n, w) * inversesqrt(dd), sin2);
+                    vec3 wn = w * inversesqrt(dd);
+                    float ff = sphere_form_factor(dot(n, wn), sin2);
+                    if (ff <= 0.0) continue;
+                    float cone = 2.0 * PI * (1.0 - sqrt(max(1.0 - min(sin2, 1.0), 0.0)));
+                    float lod = 0.5 * log2(max(cone / residual_texel, 1.0));
+                    vec3 hidden = textureLod(obj_probes, vec3(scene_st(wn), float(2 * k)), lod).rgb;
+                    acc += ff * (obj_albedo[k] * ambient_full(k, -wn) - hidden);
                     ff_sum += ff;
                     keep *= 1.0 - ff;
                 }
-                if (ff_sum > 0.0) {  // overlapping proxies: 1 - prod(1 - ff), not the sum
-                    vec3 wc = normalize(obj_sphere[k].xyz - x);
-                    vec3 l_obj = obj_albedo[k] * ambient_full(k, -wc);
-                    dE += (1.0 - keep) * PI * (l_obj - ambient_res(k, wc));
+                float fade = smoothstep(obj_reach[k], 0.6 * obj_reach[k], dc);  // no edge at the reach
+                if (ff_sum > 0.0) dE += acc * (fade * PI * (1.0 - keep) / ff_sum);  // overlaps: 1-prod(1-ff)
+#if GLOSSY_RECEIVERS
+                // the receiver's specular lobe (around rs, half-width lobe_w) meeting the proxies
+                float seen = 1.0, f_sum = 0.0;
+                vec3 l_seen = vec3(0.0);
+                for (int q = 0; q < n_proxies; ++q) {
+                    if (proxy_obj[q] != k) continue;
+                    vec3 w = proxy[q].xyz - x;
+                    float dist = length(w);
+                    float sigma = asin(min(proxy[q].w / dist, 1.0));
+                    float delta = acos(clamp(dot(rs, w / dist), -1.0, 1.0));
+                    float f = clamp((sigma + lobe_w - delta) / (2.0 * lobe_w), 0.0, 1.0)
+                              * min(1.0, sigma * sigma / (lobe_w * lobe_w));
+                    if (f <= 0.0) continue;
+                    l_seen += f * obj_albedo[k] * ambient_full(k, -w / dist);
+                    f_sum += f;
+                    seen *= 1.0 - f;
                 }
+                if (seen < 1.0) {
+                    float lod = 0.5 * log2(max(PI * lobe_w * lobe_w / residual_texel, 1.0));
+                    vec3 l_env = textureLod(obj_probes, vec3(scene_st(rs), float(2 * k + 1)), lod).rgb;
+                    dS += fade * spec_albedo * (1.0 - seen) * (l_seen / f_sum - l_env);
+                }
+#endif
             }
             for (int j = 0; j < n_lights; ++j) {
                 int k = light_obj[j];
@@ -208,14 +236,15 @@ void main() {
             if (near_any) {
                 vec3 albedo;
                 if (has_albedo != 0) {
-                    albedo = texelFetch(scene_albedo, ij, 0).rgb;
+                    albedo = base * (1.0 - rm.g);
                 } else {  // the albedo the background implies under the object-free lighting
                     albedo = clamp(PI * bg / max(e_pl, vec3(1e-6)), 0.0, 1.0);
+                    dS = vec3(0.0);
                 }
-                vec3 shadowed = max(bg + albedo * dE / PI, vec3(0.0));
+                vec3 shadowed = max(bg + albedo * dE / PI + dS, vec3(0.0));
                 float lum_pl = dot(e_pl, vec3(0.2126, 0.7152, 0.0722));
                 matte = clamp(-dot(dE, vec3(0.2126, 0.7152, 0.0722)) / max(lum_pl, 1e-6), 0.0, 1.0);
-                de_pi = dot(albedo * dE / PI, vec3(0.2126, 0.7152, 0.0722));
+                de_pi = dot(albedo * dE / PI + dS, vec3(0.2126, 0.7152, 0.0722));
                 result.rgb = shadowed;
             }
         }

@@ -3,9 +3,12 @@
 // (ibl.glsl), sharp reflections corrected for parallax against the depth panorama (scene.glsl),
 // and hidden where the scene is nearer (alpha = 0).  FUSION_PLANE (D.2's differential fusion):
 // directions toward the supporting plane see the virtual plane (predicted albedo x its irradiance)
-// instead of the probe.
+// instead of the probe.  Either way the surface the object rests on is darkened where the object
+// itself occludes it (its proxy spheres), so its reflections show its own contact shadow.
 #include "ibl.glsl"
 #include "scene.glsl"
+#include "occlusion.glsl"
+#define MAX_OWN_PROXIES 16
 #ifndef FUSION_PLANE
 #define FUSION_PLANE 0
 #endif
@@ -17,8 +20,11 @@ uniform float roughness;
 uniform float metallic;
 uniform int use_projection;    // 1: mirror reflections from the depth panorama, probe where unseen
 uniform float occlusion_eps;   // relative depth margin of the scene-occludes-object test
+uniform float footprint_scale; // 1: reflections filtered over the pixel's cone; 0: point-sampled
 uniform vec3 plane_point;      // FUSION_PLANE: the surface the object rests on
 uniform vec3 plane_normal;
+uniform int n_own_proxies;
+uniform vec4 own_proxies[MAX_OWN_PROXIES];  // this object's proxy spheres (world)
 out vec4 out_colour;
 
 float sharp_spread;            // angular size (radians) of this pixel's reflected cone
@@ -37,28 +43,47 @@ vec3 plane_radiance(vec3 x) {
     return texture(scene_albedo, scene_st(x)).rgb * texture(env_irr, dir_st(plane_normal)).rgb;
 }
 
+// the share of light the object leaves to surface point x (normal n): 1 - its proxies' coverage
+float own_shadow(vec3 x, vec3 n) {
+    float keep = 1.0;
+    for (int q = 0; q < n_own_proxies; ++q) {
+        vec3 w = own_proxies[q].xyz - x;
+        float dd = max(dot(w, w), 1e-12);
+        float sin2 = own_proxies[q].w * own_proxies[q].w / dd;
+        if (sin2 < 1e-3) continue;
+        keep *= 1.0 - sphere_form_factor(dot(n, w) * inversesqrt(dd), sin2);
+    }
+    return keep;
+}
+
 vec3 incoming(vec3 p, vec3 l, float lod) {
-#if FUSION_PLANE
     vec3 x;
-    if (plane_hit(p, l, x)) return plane_radiance(x);
+    bool on_plane = plane_hit(p, l, x);
+#if FUSION_PLANE
+    if (on_plane) return plane_radiance(x) * own_shadow(x, plane_normal);
 #endif
-    return env_lod(l, lod);
+    vec3 c = env_lod(l, lod);
+    return on_plane ? c * own_shadow(x, plane_normal) : c;
 }
 
 vec3 incoming_sharp(vec3 p, vec3 l) {
-#if FUSION_PLANE
     vec3 x;
-    if (plane_hit(p, l, x)) return plane_radiance(x);
+    bool on_plane = plane_hit(p, l, x);
+#if FUSION_PLANE
+    if (on_plane) return plane_radiance(x) * own_shadow(x, plane_normal);
 #endif
     if (use_projection != 0) {
         float t;
         if (march(p, l, t)) {
-            vec3 x = p + t * l;
-            float r = max(length(x), 1e-6);
-            return scene_radiance(x, sharp_spread * sharp_spread * (t / r) * (t / r));
+            vec3 y = p + t * l;
+            float r = max(length(y), 1e-6);
+            vec3 c = scene_radiance(y, sharp_spread * sharp_spread * (t / r) * (t / r));
+            vec3 ny = normalize(texelFetch(scene_normal, scene_texel(y), 0).xyz);
+            return c * own_shadow(y, ny);
         }
     }
-    return env_sharp(l);
+    vec3 c = env_sharp(l);
+    return on_plane ? c * own_shadow(x, plane_normal) : c;
 }
 
 void main() {
@@ -69,7 +94,7 @@ void main() {
     float nv = dot(n, v);
     if (nv < 1e-4) n = normalize(n + v * (1e-4 - nv));  // interpolated normals at silhouettes
     vec3 r = reflect_about(v, n);
-    sharp_spread = max(length(dFdx(r)), length(dFdy(r)));
+    sharp_spread = footprint_scale * max(length(dFdx(r)), length(dFdy(r)));
     float visible = length(p) <= scene_depth_at(p) * (1.0 + occlusion_eps) ? 1.0 : 0.0;
     out_colour = vec4(shade_ibl(p, n, v, base_color, roughness, metallic), visible);
 }

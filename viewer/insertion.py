@@ -62,11 +62,12 @@ class Quality:
     march_steps: int = 32  # depth-panorama marching steps (mirror reflections, placing lights)
     shadow_taps: int = 16  # PCSS blocker-search and filter taps
     peak_subsamples: bool = True  # 2 x 2 samples per peak texel (else one at its centre)
+    glossy_receivers: bool = True  # the object replaces what glossy receivers reflect
 
 
 FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=8, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
-                   peak_subsamples=False)
+                   peak_subsamples=False, glossy_receivers=False)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -166,8 +167,8 @@ class InsertionRenderer:
         self.dfg.repeat_x = self.dfg.repeat_y = False
         self.dfg.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self._scene_tex: dict[str, moderngl.Texture] = {}
-        self._vao_empty = None
-        self.stats: dict[str, float] = {}
+        self.use_projection = True  # mirror reflections from the depth panorama (else the probe only)
+        self.footprint_scale = 1.0  # 0: point-sampled mirror reflections (as a path tracer's pixel centres)
 
     # -- programs ----------------------------------------------------------------------------
     def program(self, vert: str, frag: str, **defines: int) -> moderngl.Program:
@@ -230,6 +231,9 @@ class InsertionRenderer:
                                             "f2" if big else "f4", mipmaps=True)
         tex["march_depth"] = self._equirect(self.surface.depth_tex[0, 0, :, 1:-1].numpy())
         tex["march_jump"] = self._equirect(self.surface.jump_tex[0, 0, :, 1:-1].numpy(), nearest=True)
+        rough = scene.roughness if scene.roughness is not None else torch.ones_like(scene.depth)
+        metal = scene.metallic if scene.metallic is not None else torch.zeros_like(scene.depth)
+        tex["scene_rm"] = self._equirect(hwc(torch.cat([rough, metal])), nearest=True)
         self.has_albedo = scene.albedo is not None
 
     def release_scene(self) -> None:
@@ -241,8 +245,9 @@ class InsertionRenderer:
         self._objects.clear()
 
     def _bind_scene(self, prog: moderngl.Program, first_unit: int = 3) -> None:
+        """Units 3-9: the panorama's layers (units 0-2 and 10-15 are the passes' own)."""
         for k, name in enumerate(("scene_depth", "scene_normal", "scene_albedo", "scene_image",
-                                  "march_depth", "march_jump")):
+                                  "march_depth", "march_jump", "scene_rm")):
             self._scene_tex[name].use(first_unit + k)
             _uniform(prog, name, first_unit + k)
         H, W = self.scene.size
@@ -354,13 +359,14 @@ class InsertionRenderer:
         prog = self.program("object.vert", "object.frag", FUSION_PLANE=int(fusion == "differential"))
         self._bind_scene(prog)
         self.dfg.use(2)
-        for name, unit in (("env", 0), ("env_irr", 1), ("dfg", 2), ("env_spec", 9)):
+        for name, unit in (("env", 0), ("env_irr", 1), ("dfg", 2), ("env_spec", 15)):
             _uniform(prog, name, unit)
         _uniform(prog, "spec_samples", int(quality.spec_samples))
         _uniform(prog, "mirror_roughness", float(MIRROR_ROUGHNESS))
         _uniform(prog, "lod_bias", 0.0)
         _uniform(prog, "march_steps", int(quality.march_steps))
-        _uniform(prog, "use_projection", 1)
+        _uniform(prog, "use_projection", int(self.use_projection))
+        _uniform(prog, "footprint_scale", float(self.footprint_scale))
         _uniform(prog, "occlusion_eps", 0.01)
         fbo.use()
         ctx.enable(moderngl.DEPTH_TEST)
@@ -396,7 +402,7 @@ class InsertionRenderer:
         obj, mat = st.obj, st.obj.material
         st.env.use(0)
         st.irr.use(1)
-        st.spec.use(9)
+        st.spec.use(15)
         dirs, power = st.lighting.peak_dirs, st.lighting.peak_power
         if not self._quality.peak_subsamples and dirs.shape[0]:  # one sample per texel: the 4 merged
             dirs = torch.nn.functional.normalize(dirs.reshape(-1, 4, 3).sum(1), dim=-1)
@@ -414,6 +420,9 @@ class InsertionRenderer:
         point, normal = obj.support if obj.support is not None else (st.centre - [0, st.radius, 0], (0, 1, 0))
         _uniform(prog, "plane_point", tuple(float(c) for c in point))
         _uniform(prog, "plane_normal", tuple(float(c) for c in normal))
+        proxies = obj.world_proxies()[:16]
+        _uniform(prog, "n_own_proxies", len(proxies))
+        _write(prog, "own_proxies", proxies)
         self._vao(obj, prog).render(moderngl.TRIANGLES)
 
     def _draw_depth(self, st: _ObjectGPU, vp: np.ndarray) -> None:
@@ -447,8 +456,8 @@ class InsertionRenderer:
     def _composite_uniforms(self, prog: moderngl.Program, drawn: list[tuple[_ObjectGPU, _Tile]]) -> None:
         imp = self._fbos["impostors"][1]
         aw, ah = imp.size
-        imp.use(9)
-        _uniform(prog, "imp_atlas", 9)
+        imp.use(11)
+        _uniform(prog, "imp_atlas", 11)
         _uniform(prog, "has_albedo", int(self.has_albedo))
         n = len(drawn)
         _uniform(prog, "n_objects", n)
@@ -460,6 +469,12 @@ class InsertionRenderer:
         _write(prog, "amb_full", np.stack([st.amb_full for st, _ in drawn]))
         _write(prog, "amb_res", np.stack([st.amb_res for st, _ in drawn]))
         _write(prog, "obj_albedo", [reflectance(st.obj.material) for st, _ in drawn])
+        res = self._probe_array(drawn)
+        res.use(13)
+        _uniform(prog, "obj_probes", 13)
+        _uniform(prog, "residual_texel", 2 * math.pi**2 / (res.width * res.height))
+        self.dfg.use(14)
+        _uniform(prog, "dfg", 14)
         index = {id(st): k for k, (st, _) in enumerate(drawn)}
         lights = [(st, lt) for st, lt in getattr(self, "_shadow_list", []) if id(st) in index]
         _uniform(prog, "n_lights", len(lights))
@@ -488,6 +503,25 @@ class InsertionRenderer:
         if proxies:
             _write(prog, "proxy", np.stack(proxies))
             _write(prog, "proxy_obj", owners, np.int32)
+
+    def _probe_array(self, drawn: list[tuple[_ObjectGPU, _Tile]]) -> moderngl.TextureArray:
+        """The drawn objects' probes as one mipmapped texture array: layer 2k object k's probe without
+        its dominant lights, 2k+1 the probe."""
+        key = tuple(id(st.lighting) for st, _ in drawn)
+        have = self._fbos.get("probes")
+        if have is not None and have[1] == key:
+            return have[0]
+        if have is not None:
+            have[0].release()
+        probes = [p.float() for st, _ in drawn for p in (st.lighting.residual, st.lighting.probe)]
+        h, w = probes[0].shape[-2:]
+        data = np.stack([p.permute(1, 2, 0).numpy() for p in probes]).astype(np.float32)
+        tex = self.ctx.texture_array((w, h, len(probes)), 3, data.tobytes(), dtype="f4")
+        tex.repeat_x, tex.repeat_y = True, False
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self._fbos["probes"] = (tex, key)
+        return tex
 
     def _set_view(self, prog: moderngl.Program, view, rect: tuple[float, float, float, float],
                   fb_height: float) -> None:
@@ -542,7 +576,8 @@ class InsertionRenderer:
         fbo = self.ctx.framebuffer(targets)
         try:
             kind = int(isinstance(view, PerspectiveView))
-            prog = self.program("fullscreen.vert", "composite.frag", VIEW_KIND=kind, VIEWER=0)
+            prog = self.program("fullscreen.vert", "composite.frag", VIEW_KIND=kind, VIEWER=0,
+                                GLOSSY_RECEIVERS=int(quality.glossy_receivers))
             fbo.use()
             fbo.viewport = (0, 0, w, h)
             fbo.clear(0.0, 0.0, 0.0, 0.0)
@@ -615,7 +650,8 @@ class InsertionRenderer:
         self._meshes.clear()
         for entry in self._fbos.values():
             for r in entry:
-                r.release()
+                if hasattr(r, "release"):
+                    r.release()
         self._fbos.clear()
         for p in self._programs.values():
             p.release()
@@ -668,6 +704,7 @@ class InsertionPass:
         from viewer.renderer import KINDS, TONEMAPS
 
         prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1,
+                           GLOSSY_RECEIVERS=int(quality.glossy_receivers),
                            VIEW_KIND=int(isinstance(frame.view, PerspectiveView)), NEAREST=int(frame.nearest),
                            KIND=KINDS[d.kind], TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0)
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)

@@ -129,6 +129,15 @@ class Worker:
         for t in self._threads:
             t.join(None if end is None else max(0.0, end - time.monotonic()))
 
+    def _weights_available(self) -> bool:
+        """An injected model, explicit weights, or the shipped default weights: a complete scene is
+        only re-predicted for comparison when a model can actually run."""
+        if self._predict is not None or self.predict_kwargs.get("weights"):
+            return True
+        from phyir.weights import default_weights_path
+
+        return default_weights_path().exists()
+
     # -- worker-thread side --------------------------------------------------------------------
     def _post(self, job: int, kind: str, payload: Any = None) -> None:
         self._queue.put(Update(job, kind, payload))
@@ -149,7 +158,8 @@ class Worker:
             predict = (self._predict or _library_predict()) if run_model else None
             missing = [n for n in PREDICTED if getattr(scene, n) is None]
             if compare is None:  # synthetic ground truth: predict everything and compare
-                compare = predict is not None and not missing and scene.meta.get("source") == SYNTH_SOURCE
+                compare = (predict is not None and not missing and self._weights_available()
+                           and scene.meta.get("source") == SYNTH_SOURCE)
             if compare:
                 gt, missing = scene, list(PREDICTED)
                 scene = PanoScene(image=scene.image, meta=dict(scene.meta))
