@@ -205,7 +205,7 @@ class Reference:
 # ---------------------------------------------------------------------------------------------
 # the benchmark
 
-FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3,
+FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3, "memory": True,
         "is_spp": (4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64}
 QUICK = {"size": (64, 128), "block": 2, "probe": (16, 32), "ref_spp": 512, "repeats": 2,
          "is_spp": (4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16}
@@ -270,11 +270,14 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
         return call
 
     calls = {c: make(*c) for c in configs}
-    errors, first = {}, {}
+    errors, first, breakdown = {}, {}, []
     for c, fn in calls.items():  # errors, and the cost of one call to group the timings
         t0 = time.perf_counter()
-        errors[c] = ref.errors(fn())
+        out = fn()
         first[c] = time.perf_counter() - t0
+        errors[c] = ref.errors(out)
+        if c[0] == "prefiltered":
+            breakdown = prefiltered_breakdown(scene, out, ref)
     times = {}
     for fast in (True, False):  # interleaved timing; short calls get more repeats
         group = {c: fn for c, fn in calls.items() if (first[c] < 1.0) == fast}
@@ -287,7 +290,32 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
         rows.append(row)
         log(f"  {method:<12} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f} specular {row['err_specular']:.4f}")
-    return {"reference_spp": cfg["ref_spp"], "reference_noise": ref.noise, "rows": rows}
+    return {"reference_spp": cfg["ref_spp"], "reference_noise": ref.noise, "rows": rows,
+            "prefiltered_breakdown": breakdown}
+
+
+def prefiltered_breakdown(scene: PanoScene, out: dict[str, Tensor], ref: Reference) -> list[dict]:
+    """Where the split sum errs: specular error and bias of the prefiltered render by n.v and R."""
+    from phyir.render import _view_dirs
+
+    H, W = scene.size
+    nv = (scene.normal * _view_dirs(H, W, scene.normal.device, scene.normal.dtype)).sum(0, keepdim=True)
+    rough = scene.roughness
+    rows = []
+    bins = (("n.v", nv, (0.0, 0.3, 0.5, 0.7, 1.01)), ("R", rough, (0.0, 0.2, 0.4, 0.6, 0.8, 1.01)))
+    for name, t, edges in bins:
+        for lo, hi in zip(edges, edges[1:]):
+            m = ref.mask * ((t >= lo) & (t < hi))
+            if float(m.sum()) == 0:
+                continue
+            e = (out["specular"] - ref.layers["specular"]) * m
+            r = ref.layers["specular"] * m
+            rows.append({"by": name, "lo": lo, "hi": min(hi, 1.0), "pixels": float(m.mean()),
+                         "err_specular": rel_rmse(out["specular"], ref.layers["specular"], m),
+                         "bias_specular": float(e.sum() / r.sum().clamp(min=1e-30)),
+                         "share_of_err2": float((e**2).sum() / (((out["specular"] - ref.layers["specular"])
+                                                                  * ref.mask) ** 2).sum().clamp(min=1e-30))})
+    return rows
 
 
 def summarize(res: dict) -> dict:
@@ -373,7 +401,9 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
                "samples": _sample_count(pixel_classes(scene, sk), spp, name == "rough_all_cosine")}
         for a, m in affected.items():
             row[f"err_{a}_pixels"] = rel_rmse(r["image"], ref.layers["image"], m)
+            row[f"err_specular_{a}_pixels"] = rel_rmse(r["specular"], ref.layers["specular"], m)
         row["err_rough_all_cosine_pixels"] = row["err_rough_pixels"]
+        row["err_specular_rough_all_cosine_pixels"] = row["err_specular_rough_pixels"]
         out[name] = row
         log(f"  skips {name:<16} {row['median_s'] * 1e3:9.1f} ms  CPU min {row['cpu_min_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f}")
@@ -397,8 +427,48 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
         if f"err_{name}_pixels" in r:  # error on the pixels the skip changes, with / without it
             entry["err_pixels"] = r[f"err_{name}_pixels"]
             entry["err_pixels_without"] = prev[f"err_{name}_pixels"]
+        if f"err_specular_{name}_pixels" in r:
+            entry["err_specular_pixels"] = r[f"err_specular_{name}_pixels"]
+            entry["err_specular_pixels_without"] = prev[f"err_specular_{name}_pixels"]
         table.append(entry)
     return [{"variant": k, **v} for k, v in out.items()] + [{"summary": table}]
+
+
+def _peak_rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 1024
+
+
+def memory_use(H: int = 256, W: int = 512, spp: int = 64, log: Callable[[str], None] = print) -> list[dict]:
+    """Peak resident memory added by one render at ``H x W`` (probe per 2x2 pixels), forward and
+    forward + backward (Linux: resets and reads /proc/self VmHWM; empty elsewhere)."""
+    import gc
+
+    from phyir.render import render_scene
+
+    if not os.path.exists("/proc/self/clear_refs"):
+        return []
+    rows = []
+    for method, grad in (("importance", False), ("importance", True), ("prefiltered", False),
+                         ("prefiltered", True)):
+        sc = bench_scene("mixed", H, W)
+        if grad:
+            sc = sc.replace(normal=sc.normal.requires_grad_(True), albedo=sc.albedo.requires_grad_(True),
+                            probes=sc.probes.requires_grad_(True))
+        gc.collect()
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")  # reset the peak to the current resident size
+        base = _peak_rss_mb()
+        out = render_scene(sc, spp=spp, method=method)
+        if grad:
+            out["image"].sum().backward()
+        rows.append({"method": method, "grad": grad, "size": [H, W], "spp": spp,
+                     "extra_peak_mb": _peak_rss_mb() - base,
+                     "probes_mb": sc.probes.numel() * sc.probes.element_size() / 2**20})
+        log(f"  memory {method:<11} {'forward+backward' if grad else 'forward':<16} "
+            f"+{rows[-1]['extra_peak_mb']:.0f} MB (probes {rows[-1]['probes_mb']:.0f} MB)")
+        del sc, out
+    return rows
 
 
 def energy_curves(path: Path | None = None) -> dict:
@@ -496,6 +566,9 @@ def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str]
     log(f"render bench: skips on the mixed scene {H}x{W}")
     sc = bench_scene("mixed", H, W, cfg["block"], cfg["probe"]).to(device)
     result["skips"] = bench_skips(sc, cfg, device, log)
+    if cfg.get("memory"):
+        log("render bench: memory at 256x512, 64 spp")
+        result["memory"] = memory_use(log=log)
     result["config"]["loadavg_end"] = os.getloadavg()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -541,6 +614,11 @@ def format_table(result: dict) -> str:
                     lines.append(f"- uniform {q['uniform_spp']} spp ({layer} err {q['uniform_err']:.4f}) = "
                                  f"importance {q['is_spp_same_err']:.1f} spp: "
                                  f"{q['sample_ratio']:.1f}x fewer samples")
+        for b in res.get("prefiltered_breakdown", []):
+            lines.append(f"- prefiltered specular, {b['by']} in [{b['lo']:.1f}, {b['hi']:.1f}) "
+                         f"({100 * b['pixels']:.0f}% of pixels): error {b['err_specular']:.3f}, "
+                         f"bias {b['bias_specular']:+.3f}, "
+                         f"share of the squared error {b['share_of_err2']:.2f}")
         p = sm.get("prefiltered_vs_is")
         if p:
             lines.append(f"- prefiltered (err {p['prefiltered_err']:.4f}, "
@@ -549,18 +627,26 @@ def format_table(result: dict) -> str:
                          f"{p['speedup_median']:.1f}x faster (median wall), "
                          f"{p['speedup_min']:.1f}x (min wall), {p['speedup_cpu']:.1f}x (CPU time)")
         lines.append("")
+    for m in result.get("memory", []):
+        lines.append(f"- memory, {m['size'][0]}x{m['size'][1]} {m['method']} {m['spp']} spp "
+                     f"{'forward+backward' if m['grad'] else 'forward'}: +{m['extra_peak_mb']:.0f} MB peak "
+                     f"(probes {m['probes_mb']:.0f} MB)")
+    if result.get("memory"):
+        lines.append("")
     sk = result["skips"][-1]["summary"]
     lines += [f"skips (mixed scene, importance {cfg['skip_spp']} spp)", "",
               "| skip | pixels | samples saved | wall time saved (median) | CPU time saved (min) "
-              "| err image with / without | err on its pixels with / without |",
-              "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+              "| err image with / without | err on its pixels with / without "
+              "| specular err on its pixels with / without |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for e in sk:
         lines.append(f"| {e['skip']} | {100 * e['fraction']:.1f}% | {100 * e['samples_saved_frac']:.1f}% | "
                      f"{e['time_saved_s'] * 1e3:.0f} ms ({100 * e['time_saved_frac']:.0f}%) | "
                      f"{e['cpu_saved_s'] * 1e3:.0f} ms ({100 * e['cpu_saved_frac']:.0f}%) | "
                      f"{e['err_image']:.4f} / {e['err_image_without']:.4f} | "
-                     + (f"{e['err_pixels']:.4f} / {e['err_pixels_without']:.4f} |" if "err_pixels" in e
-                        else "n/a (image value by definition) |"))
+                     + (f"{e['err_pixels']:.4f} / {e['err_pixels_without']:.4f} | "
+                        f"{e['err_specular_pixels']:.4f} / {e['err_specular_pixels_without']:.4f} |"
+                        if "err_pixels" in e else "n/a (image value by definition) | n/a |"))
     return "\n".join(lines)
 
 

@@ -23,9 +23,11 @@ Methods
     Split sum, see :mod:`phyir.prefilter`: no samples, biased (measured in docs/rendering.md).
 
 Samples come from one scrambled Sobol (or Hammersley, or iid ``sampler="random"``) point set per
-lobe, rotated per pixel by seeded Cranley-Patterson shifts, so results don't depend on chunking and
-equal seeds give equal images on every device.  Sample directions and pdfs are detached: gradients
-reach the integrand (BRDF, cosine, radiance) and are unbiased for the expectation.
+lobe, rotated per pixel by seeded Cranley-Patterson shifts that depend on the pixel's position in
+its image only, so results don't depend on chunking or batching and equal seeds give equal images on
+every device.  Sample directions and pdfs are detached: gradients reach the integrand (BRDF, cosine,
+radiance) and are unbiased for the expectation.  Pixels are shaded in chunks of
+:data:`CHUNK_SAMPLES` samples, each checkpointed when gradients are needed.
 
 Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/rendering.md)
 -----------------------------------------------------------------------------------------
@@ -39,7 +41,8 @@ Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/ren
 ``rough``    when the specular lobe can't exceed :data:`ROUGH_SPEC_RATIO` of the diffuse lobe under
              any lighting (π max_l f_s / (B(1-M)) from :func:`phyir.prefilter.specular_peak_table`)
              the GGX samples are skipped; the cosine samples still estimate the specular lobe, so
-             this costs variance, not bias.
+             this costs variance, not bias.  ``ROUGH_ALL_COSINE = True`` spends all ``spp`` on the
+             cosine lobe there instead (no time saved, less noise).
 
 Precision: the layer always computes in float32 (float64 if given float64) with autocast disabled,
 because GGX at R = 0 spans ~1e12 in value and gradient, beyond float16/bfloat16.

@@ -2,7 +2,7 @@
 # One-step set-up for PhyIR, then optionally the demo or the tests.
 #   bash scripts/setup.sh            set up only
 #   bash scripts/setup.sh --demo     set up, then open the demo scene in phyir-view
-#   bash scripts/setup.sh --test     set up, then run the test suite
+#   bash scripts/setup.sh --test     set up, then lint (ruff) and run the test suite
 # Installs into the active virtualenv/conda env if there is one, else into ./.venv.
 # Never replaces an installed torch; installs the CPU build (torch==2.13.0) only when torch is missing.
 set -euo pipefail
@@ -65,6 +65,7 @@ case "$mode" in
   --test)
     shift || true
     export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
+    "$py" -m ruff check . && log "ruff: clean"
     exec "$py" -m pytest -q "$@"
     ;;
   "") log "done. Run: $bindir/phyir-view  (or $bindir/phyir --help)";;

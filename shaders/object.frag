@@ -28,6 +28,7 @@ uniform vec4 own_proxies[MAX_OWN_PROXIES];  // this object's proxy spheres (worl
 out vec4 out_colour;
 
 float sharp_spread;            // angular size (radians) of this pixel's reflected cone
+float plane_keep;              // own_shadow where the reflected ray meets the plane (all lobe samples)
 
 bool plane_hit(vec3 p, vec3 l, out vec3 x) {
     x = p;
@@ -60,10 +61,10 @@ vec3 incoming(vec3 p, vec3 l, float lod) {
     vec3 x;
     bool on_plane = plane_hit(p, l, x);
 #if FUSION_PLANE
-    if (on_plane) return plane_radiance(x) * own_shadow(x, plane_normal);
+    if (on_plane) return plane_radiance(x) * plane_keep;
 #endif
     vec3 c = env_lod(l, lod);
-    return on_plane ? c * own_shadow(x, plane_normal) : c;
+    return on_plane ? c * plane_keep : c;
 }
 
 vec3 incoming_sharp(vec3 p, vec3 l) {
@@ -95,6 +96,11 @@ void main() {
     if (nv < 1e-4) n = normalize(n + v * (1e-4 - nv));  // interpolated normals at silhouettes
     vec3 r = reflect_about(v, n);
     sharp_spread = footprint_scale * max(length(dFdx(r)), length(dFdy(r)));
+    // the object's shadow on its plane, evaluated once: where the reflected ray (or, for rays
+    // going up, the point below) meets it
+    vec3 xr;
+    if (!plane_hit(p, r, xr)) xr = p - dot(p - plane_point, plane_normal) * plane_normal;
+    plane_keep = own_shadow(xr, plane_normal);
     float visible = length(p) <= scene_depth_at(p) * (1.0 + occlusion_eps) ? 1.0 : 0.0;
     out_colour = vec4(shade_ibl(p, n, v, base_color, roughness, metallic), visible);
 }

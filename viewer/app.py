@@ -126,6 +126,10 @@ class App:
         self._fit_pending = True
         self._redraw = 2
         self._last_uploaded = False
+        from viewer.objects_panel import ObjectsPanel  # inserted objects (issue 8): an overlay pass
+
+        with self.surface.current():
+            self.objects = ObjectsPanel(self)
         self.gui = None
         if ui:
             from viewer.gui import Gui
@@ -549,12 +553,13 @@ class App:
             near = self.view_kind == "equirect" and self.view.zoom * tex.size[0] / self.size[1] > NEAREST_ZOOM
         return Frame(texture=tex, pano_size=self.size, view=self.view, display=self.display(layer),
                      nearest=near, markers=self.markers(), background=BACKGROUND,
-                     extras={"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene})
+                     extras={"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene,
+                             "insert": layer == "image"})
 
     def _view_key(self, spec: Frame, rect) -> tuple | None:
         """Everything the view's picture depends on (the renderer redraws it when this changes);
         None when linear passes (e.g. inserted objects) draw: they keep their own state."""
-        if self.renderer.linear_passes:
+        if self.renderer.linear_passes or self.objects.active():
             return None
         fields = dataclasses.astuple
         version = next((self._tex_version.get(k, 0) for k, t in self._textures.items()
@@ -680,6 +685,7 @@ class App:
                 self.gui.shutdown()
                 self.gui = None
             self._clear()
+            self.objects.release()
             self.renderer.release()
         self.surface.close()
         sys.setswitchinterval(self._switch_interval)

@@ -253,9 +253,14 @@ class Gui:
         io = self.io
         mx, my = (io.mouse_pos.x - x / s) * s, (io.mouse_pos.y - y / s) * s  # framebuffer px in the view
         hovered = imgui.is_item_hovered()
+        # inserted objects first: the gizmo, click-to-drop and dragging take the mouse from the view
+        took = app.objects.gizmo((x / s, y / s, w / s, h / s), (w, h))
+        took = app.objects.view_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(),
+                                      imgui.is_item_deactivated(), bool(io.mouse_delta.x or io.mouse_delta.y),
+                                      mx, my) or took
         if imgui.is_item_activated():
-            self._dragged = False
-        if imgui.is_item_active() and imgui.is_mouse_dragging(0, 2.0):
+            self._dragged = took
+        if not took and imgui.is_item_active() and imgui.is_mouse_dragging(0, 2.0):
             d = io.mouse_delta
             if d.x or d.y:
                 app.drag(d.x * s, d.y * s)
@@ -337,6 +342,8 @@ class Gui:
             self._readout()
         if imgui.collapsing_header(f"Probes ({len(app.pins)})###probes", imgui.TreeNodeFlags_.default_open):
             self._probes()
+        if imgui.collapsing_header(f"Objects ({len(app.objects.objects)})###objects"):
+            app.objects.build_ui()
         if imgui.collapsing_header("Messages"):
             for m in list(app.messages)[::-1]:
                 imgui.push_text_wrap_pos(0)

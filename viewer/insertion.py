@@ -66,7 +66,7 @@ class Quality:
 
 
 FULL = Quality(supersample=1.5)
-DRAGGING = Quality(spec_samples=8, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
+DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
                    peak_subsamples=False, glossy_receivers=False)
 
 

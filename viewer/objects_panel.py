@@ -300,14 +300,15 @@ class ObjectsPanel:
 
     def gizmo(self, rect_logical: tuple[float, float, float, float], view_size: tuple[int, int]) -> bool:
         """ImGuizmo on the selected object in the perspective view (the equirect view has no linear
-        projection); call inside the view window.  True while the gizmo is in use."""
+        projection); call inside the view window, once per frame.  True while the mouse is on it."""
         from imgui_bundle import imgui, imguizmo
 
+        g = imguizmo.im_guizmo
+        g.begin_frame()
         view = self.app.view
         sel = self.selected
         if sel is None or sel >= len(self.objects) or not isinstance(view, PerspectiveView):
             return False
-        g = imguizmo.im_guizmo
         g.set_drawlist(imgui.get_window_draw_list())
         g.set_rect(*rect_logical)
         obj = self.objects[self.selected]
@@ -327,7 +328,7 @@ class ObjectsPanel:
             obj.position = m[:3, 3].copy()
             obj.support = None if self.gizmo_op != "scale" else obj.support
             self._changed()
-        return bool(g.is_using())
+        return bool(g.is_using() or g.is_over())
 
     def _try(self, fn) -> None:
         try:

@@ -1,0 +1,134 @@
+"""Inserted objects in the viewer app, headless (EGL), through the methods its panel and mouse call."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from viewer import window as _surfaces
+
+_surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
+
+from insert_fixtures import FLOOR_Y, box_room  # noqa: E402
+from test_viewer_scenes import cheap_render  # noqa: E402
+
+from phyir import pano  # noqa: E402
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture(scope="module")
+def app():
+    import moderngl
+
+    try:
+        moderngl.create_standalone_context(backend="egl", require=330).release()
+    except Exception as e:  # noqa: BLE001
+        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
+    from viewer.app import App
+
+    a = App((900, 520), headless=True, recent=False, render=cheap_render)
+    a.open(box_room(64, 128))
+    assert a.wait_idle(60) and a.error is None
+    yield a
+    a.close()
+
+
+def view_pixels(app) -> np.ndarray:
+    x, y, w, h = app.view_rect()
+    return app.screenshot()[y:y + h, x:x + w].astype(np.int32)
+
+
+def screen_of(app, point: np.ndarray) -> tuple[float, float]:
+    H, W = app.size
+    u, v, _ = pano.points_to_uv(torch.as_tensor(point), H, W)
+    x, y, _ = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+    return float(x), float(y)
+
+
+def test_add_drag_layers_delete_and_export(app, tmp_path):
+    from viewer.objects import PRESETS
+
+    panel = app.objects
+    before = view_pixels(app)
+    obj = panel.add("sphere", PRESETS["matte-silver"], 0.25, at=(40.5, 50.5))
+    with_obj = view_pixels(app)
+    cx, cy = screen_of(app, obj.bounding_sphere()[0])
+    changed = np.abs(with_obj - before).sum(-1) > 0
+    assert changed[int(cy), int(cx)]  # the object's centre pixel shows the object
+    ys, xs = np.nonzero(changed)
+    assert np.hypot(xs - cx, ys - cy).max() < 0.3 * app.view_size()[0]  # only around it
+    # drag it sideways by 40 screen pixels: it slides over the floor, the picture follows
+    assert panel.begin_drag(cx, cy)
+    for k in range(1, 5):
+        panel.drag_to(cx + 10 * k, cy)
+        app.frame()
+    panel.end_drag()
+    base = obj.position - obj.base_offset() * (obj.rotation @ np.array([0.0, 1.0, 0.0]))
+    assert abs(base[1] - FLOOR_Y) < 0.01
+    cx2, _ = screen_of(app, obj.bounding_sphere()[0])
+    assert 30 < cx2 - cx < 50
+    moved = view_pixels(app)
+    assert (np.abs(moved - with_obj).sum(-1) > 0)[int(cy), int(cx2)]
+    # objects are drawn over the image layer only
+    app.set_layer("depth")
+    depth_with = view_pixels(app)
+    panel.set_visible(0, False)
+    assert np.array_equal(view_pixels(app), depth_with)
+    panel.set_visible(0, True)
+    app.set_layer("image")
+    # export: EXR passes and a PNG
+    files = panel.export(str(tmp_path / "room_insert.exr"))
+    assert [f.rsplit(".", 1)[1] for f in files] == ["exr", "png"]
+    # duplicate, then delete both: the panorama is back, pixel for pixel
+    panel.duplicate(0)
+    assert len(panel.objects) == 2
+    panel.delete(1)
+    panel.delete(0)
+    assert np.array_equal(view_pixels(app), before)
+
+
+def test_click_to_drop_takes_the_click_from_the_probe_pin(app):
+    from viewer.objects import PRESETS
+
+    panel = app.objects
+    panel.add("cube", PRESETS["diffuse"], 0.2, at=(64.5, 50.5))
+    panel.drop_mode = True
+    pins = len(app.pins)
+    x, y = screen_of(app, np.array([0.8, FLOOR_Y, -1.5]))
+    took = panel.view_mouse(True, True, True, False, False, x, y)
+    assert took and len(app.pins) == pins
+    obj = panel.objects[-1]
+    np.testing.assert_allclose(obj.support[0], [0.8, FLOOR_Y, -1.5], atol=0.05)
+    panel.drop_mode = False
+    panel.delete(len(panel.objects) - 1)
+
+
+def test_panel_and_gizmo_build_in_a_frame(app, monkeypatch):
+    """The Objects panel and the gizmo go through imgui in a real frame without errors."""
+    from imgui_bundle import imgui
+
+    from viewer.objects import PRESETS
+
+    panel = app.objects
+    panel.add("cylinder", PRESETS["mirror-silver"], 0.2, at=(50.5, 50.5))
+    app.set_view("perspective", yaw=0.0, pitch=-0.5)
+    original = app.gui.build
+    calls = []
+
+    def build():
+        original()
+        imgui.begin("objects test")
+        panel.build_ui()
+        x, y, w, h = app.view_rect()
+        s = app.gui.fb_scale
+        calls.append(panel.gizmo((x / s, y / s, w / s, h / s), (w, h)))
+        imgui.end()
+
+    monkeypatch.setattr(app.gui, "build", build)
+    app.frame()
+    app.frame()
+    assert len(calls) == 2
+    app.set_view("equirect")
+    panel.delete(len(panel.objects) - 1)
