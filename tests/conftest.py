@@ -33,3 +33,16 @@ def panos_dir() -> Path:
 @pytest.fixture()
 def rng() -> torch.Generator:
     return torch.Generator().manual_seed(1234)
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    """A headless (EGL) OpenGL 3.3 context for GL tests; skips where none can be created."""
+    import moderngl
+
+    try:
+        c = moderngl.create_standalone_context(backend="egl", require=330)
+    except Exception as e:  # noqa: BLE001
+        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
+    yield c
+    c.release()

@@ -32,16 +32,6 @@ TOLERANCE = {"diffuse": 0.03, "matte_silver": 0.05, "mirror_silver": 0.05}
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    try:
-        c = moderngl.create_standalone_context(backend="egl", require=330)
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def renderer(ctx):
     r = InsertionRenderer(ctx)
     yield r

@@ -16,16 +16,6 @@ pytestmark = pytest.mark.gl
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    try:
-        c = moderngl.create_standalone_context(backend="egl", require=330)
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def renderer(ctx):
     from viewer.renderer import Renderer
 
