@@ -113,17 +113,20 @@ def main() -> int:
             before = tonemap(scene.image.permute(1, 2, 0).numpy()[box], exposure)
             after = tonemap(out["composite"][box], exposure)
             rows.append(np.concatenate([before, after], 1))
-            # the command line, once per scene (a matte-silver sphere)
-            cli_out = os.path.join(args.out, f"insert_{name}.exr")
-            os.makedirs(args.out, exist_ok=True)
-            t = time.perf_counter()
-            rc = cli(["insert", path, "--object", "sphere", "--scale", "0.2", "--at",
-                      f"{spots[0][0] - 0.5:.0f},{spots[0][1] - 0.5:.0f}", "--material", "matte-silver",
-                      "-o", cli_out])
             results[name] = {"size": f"{W}x{H}", "objects": len(objs), "render_s": round(dt, 3),
-                             "cli_rc": rc, "cli_s": round(time.perf_counter() - t, 2),
                              "spots": [[round(a, 1), round(b, 1)] for a, b in spots]}
-            print(name, results[name], flush=True)
+    ins.release()
+    ctx.release()
+    # the command line, once per scene (a matte-silver sphere; it makes its own GL context)
+    os.makedirs(args.out, exist_ok=True)
+    for path in args.scenes:
+        name = Path(path).stem
+        u, v = results[name]["spots"][0]
+        t = time.perf_counter()
+        rc = cli(["insert", path, "--object", "sphere", "--scale", "0.2", "--material", "matte-silver",
+                  "--at", f"{u - 0.5:.0f},{v - 0.5:.0f}", "-o", os.path.join(args.out, f"insert_{name}.exr")])
+        results[name].update(cli_rc=rc, cli_s=round(time.perf_counter() - t, 2))
+        print(name, results[name], flush=True)
     width = max(r.shape[1] for r in rows)
     grid = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows], 0)
     os.makedirs(os.path.dirname(args.image), exist_ok=True)

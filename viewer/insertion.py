@@ -507,9 +507,9 @@ class InsertionRenderer:
     def _probe_array(self, drawn: list[tuple[_ObjectGPU, _Tile]]) -> moderngl.TextureArray:
         """The drawn objects' probes as one mipmapped texture array: layer 2k object k's probe without
         its dominant lights, 2k+1 the probe."""
-        key = tuple(id(st.lighting) for st, _ in drawn)
+        key = tuple(st.lighting for st, _ in drawn)  # the objects themselves: ids can be reused
         have = self._fbos.get("probes")
-        if have is not None and have[1] == key:
+        if have is not None and len(have[1]) == len(key) and all(a is b for a, b in zip(have[1], key)):
             return have[0]
         if have is not None:
             have[0].release()
