@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -199,10 +200,20 @@ class SceneDataset(_ScenesBase):
                  limit: int | None = None, cache_dir: str | os.PathLike | None = None):
         self.root = Path(root)
         files = read_manifest(self.root)[split]
-        if limit is not None:
-            files = files[:limit]
+        listed = len(files)
         if not files:
             raise InputError(self.root, f"split {split!r} of the manifest is empty")
+        # a dataset still being generated (or one shard of it) lists scenes that don't exist yet:
+        # train on those present, and say how many are missing
+        files = [f for f in files if (self.root / f).is_file()]
+        if not files:
+            raise InputError(self.root, f"none of the {listed} scene files of split {split!r} exist yet")
+        if len(files) < listed:
+            warnings.warn(f"{self.root}: {listed - len(files)} of {listed} {split} scenes listed in the "
+                          "manifest are missing (still being generated?); using the "
+                          f"{len(files)} present", stacklevel=2)
+        if limit is not None:
+            files = files[:limit]
         self.files = [self.root / f for f in files]
         self.split, self.size, self.augment, self.seed = split, size, augment, seed
         self.probe_grid = probe_grid

@@ -128,3 +128,15 @@ def test_manifest_errors(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps({"count": 3}))
     with pytest.raises(InputError, match="no train/val/test"):
         read_manifest(tmp_path)
+
+
+def test_dataset_still_being_generated_uses_the_scenes_present(tmp_path):
+    write_dataset(tmp_path, n_train=3, n_val=1, H=32, W=64, grid=(2, 4))
+    (tmp_path / "scene_000001.exr").unlink()
+    with pytest.warns(UserWarning, match="1 of 3 train scenes listed in the manifest are missing"):
+        ds = SceneDataset(tmp_path, "train")
+    assert [p.name for p in ds.files] == ["scene_000000.exr", "scene_000002.exr"]
+    (tmp_path / "scene_000000.exr").unlink()
+    (tmp_path / "scene_000002.exr").unlink()
+    with pytest.raises(InputError, match="none of the 3 scene files of split 'train' exist yet"):
+        SceneDataset(tmp_path, "train")
