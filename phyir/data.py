@@ -163,6 +163,26 @@ def read_manifest(root: str | os.PathLike) -> dict[str, list[str]]:
     return {k: [str(f) for f in splits.get(k, [])] for k in SPLITS}
 
 
+def split_files(root: str | os.PathLike, split: str, limit: int | None = None) -> list[Path]:
+    """The scene files of ``split`` that exist (the first ``limit``).
+
+    A dataset still being generated (or one shard of it) lists scenes that don't exist yet: use those
+    present, and warn how many are missing.
+    """
+    root = Path(root)
+    files = read_manifest(root)[split]
+    listed = len(files)
+    if not files:
+        raise InputError(root, f"split {split!r} of the manifest is empty")
+    files = [f for f in files if (root / f).is_file()]
+    if not files:
+        raise InputError(root, f"none of the {listed} scene files of split {split!r} exist yet")
+    if len(files) < listed:
+        warnings.warn(f"{root}: {listed - len(files)} of {listed} {split} scenes listed in the manifest "
+                      f"are missing (still being generated?); using the {len(files)} present", stacklevel=3)
+    return [root / f for f in files[:limit]]
+
+
 class _ScenesBase(Dataset):
     """Shared per-item processing: resize, seeded augmentation, exposure normalisation."""
 
@@ -199,22 +219,7 @@ class SceneDataset(_ScenesBase):
                  probe_grid: tuple[int, int] | None = None, augment: Augment | None = None, seed: int = 0,
                  limit: int | None = None, cache_dir: str | os.PathLike | None = None):
         self.root = Path(root)
-        files = read_manifest(self.root)[split]
-        listed = len(files)
-        if not files:
-            raise InputError(self.root, f"split {split!r} of the manifest is empty")
-        # a dataset still being generated (or one shard of it) lists scenes that don't exist yet:
-        # train on those present, and say how many are missing
-        files = [f for f in files if (self.root / f).is_file()]
-        if not files:
-            raise InputError(self.root, f"none of the {listed} scene files of split {split!r} exist yet")
-        if len(files) < listed:
-            warnings.warn(f"{self.root}: {listed - len(files)} of {listed} {split} scenes listed in the "
-                          "manifest are missing (still being generated?); using the "
-                          f"{len(files)} present", stacklevel=2)
-        if limit is not None:
-            files = files[:limit]
-        self.files = [self.root / f for f in files]
+        self.files = split_files(self.root, split, limit)
         self.split, self.size, self.augment, self.seed = split, size, augment, seed
         self.probe_grid = probe_grid
 
@@ -257,14 +262,21 @@ class TensorSceneDataset(_ScenesBase):
         return self._prepare(self.scenes[i], i)
 
 
+F16_MAX = 65504.0
+
+
 def _write_cached(path: Path, scene: PanoScene) -> None:
     from safetensors.torch import save
 
     from phyir.io import atomic_write
 
-    tensors = {name: t.half().contiguous() for name, t in scene.layers()}
+    # float16 spans 6e-8 .. 65504: store the exposure-normalised scene (every later step is invariant
+    # to the image's scale), else a 1e6-bright scene overflows to Inf and a 1e-6-dark one loses its bits
+    scene = normalize_scene(scene)
+    f16 = lambda t: t.clamp(-F16_MAX, F16_MAX).half().contiguous()  # noqa: E731
+    tensors = {name: f16(t) for name, t in scene.layers()}
     if scene.probes is not None:
-        tensors["probes"] = scene.probes.half().contiguous()
+        tensors["probes"] = f16(scene.probes)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as tmp:
         Path(tmp).write_bytes(save(tensors, metadata={k: str(v) for k, v in scene.meta.items()}))

@@ -11,7 +11,9 @@
   - ``projection_gt_geometry``: the same from the ground-truth depth (the projection itself, without
     the depth network's error),
   - ``constant``: a trivial baseline (depth 3 m, normals facing the camera, base colour 0.5,
-    roughness 0.5, metalness 0, every probe uniform at the image's mean radiance).
+    roughness 0.5, metalness 0, every probe uniform at the image's mean radiance),
+  - ``dataset_means``: the trivial baselines of the training set's statistics (:func:`means_baseline`:
+    mean depth, mean base colour/roughness/metalness, the mean probe), when the dataset has a train split.
 
 Pixels flagged ``masks["emission"]`` in the ground truth (lamps, windows) are left out of the
 normal and material metrics (their base colour/roughness are undefined); depth counts every pixel.
@@ -104,29 +106,80 @@ def constant_baseline(gt: PanoScene) -> PanoScene:
                      metallic=torch.zeros(1, H, W), probes=probes)
 
 
+def dataset_means(root: str | os.PathLike, split: str = "train",
+                  limit: int | None = 200) -> dict[str, Tensor]:
+    """Per-dataset means of the ``split`` (first ``limit`` scenes) for :func:`means_baseline`: depth,
+    base colour [3], roughness, metalness (over non-emissive pixels) and the mean probe [3,h,w] of
+    exposure-normalised scenes (:func:`phyir.data.exposure_scale`)."""
+    from phyir.data import exposure_scale, split_files
+    from phyir.io import load_scene
+
+    acc: dict[str, Tensor] = {}
+    n_pix = n_mat = n_probe = 0
+    for f in split_files(root, split, limit):
+        s = load_scene(f).to(dtype=torch.float64)
+        m = surface_mask(s)
+        m = torch.ones_like(s.depth) if m is None else m
+        acc["depth"] = acc.get("depth", 0) + s.depth.sum()
+        n_pix += s.depth.numel()
+        for k in ("albedo", "roughness", "metallic"):
+            acc[k] = acc.get(k, 0) + (getattr(s, k) * m).sum((-2, -1))
+        n_mat += float(m.sum())
+        if s.probes is not None:
+            p = s.probes.reshape(-1, 3, *s.probe_size) * exposure_scale(s.image).double()
+            if "probe" in acc and acc["probe"].shape[-2:] != p.shape[-2:]:
+                p = pano.resize_area(p, *acc["probe"].shape[-2:])
+            acc["probe"] = acc.get("probe", 0) + p.sum(0)
+            n_probe += len(p)
+    out = {"depth": acc["depth"] / n_pix}
+    out |= {k: acc[k] / max(n_mat, 1) for k in ("albedo", "roughness", "metallic")}
+    if n_probe:
+        out["probe"] = acc["probe"] / n_probe
+    return {k: v.float() for k, v in out.items()}
+
+
+def means_baseline(gt: PanoScene, means: dict[str, Tensor]) -> PanoScene:
+    """The dataset-means predictor: the training set's mean depth, base colour, roughness and
+    metalness everywhere, normals facing the camera, every probe the mean (exposure-normalised) probe
+    brought to this image's exposure."""
+    from phyir.data import exposure_scale
+
+    H, W = gt.size
+    probes = None
+    if gt.probes is not None and "probe" in means:
+        mp = _resample_probes(means["probe"][None], tuple(gt.probe_size))[0] / exposure_scale(gt.image)
+        probes = mp.expand_as(gt.probes).clone()
+    return PanoScene(image=gt.image, depth=means["depth"].expand(1, H, W).clone(),
+                     normal=-pano.directions(H, W),
+                     albedo=means["albedo"].view(3, 1, 1).expand(3, H, W).clone(),
+                     roughness=means["roughness"].view(1, 1, 1).expand(1, H, W).clone(),
+                     metallic=means["metallic"].view(1, 1, 1).expand(1, H, W).clone(), probes=probes)
+
+
 def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None, model=None,
                    device=None, limit: int | None = None, probes_per_scene: int = 256, relight: int = 16,
                    spp: int = 64, seed: int = 0,
                    log: Callable[[str], None] | None = None) -> dict[str, dict[str, float]]:
     """Metrics per method (``model/lnet``, ``model/projection``, ``projection_gt_geometry``,
-    ``constant``) averaged over the scenes of ``split``; see the module doc.  ``model/lnet`` also
-    has ``predict_seconds``: the mean time of :func:`phyir.predict` per scene (LNet lighting)."""
-    from phyir.data import read_manifest
+    ``constant``, ``dataset_means``) averaged over the scenes of ``split``; see the module doc.
+    ``model/lnet`` also has ``predict_seconds``: the mean time of :func:`phyir.predict` per scene
+    (LNet lighting)."""
+    from phyir.data import split_files
     from phyir.inference import lnet_probes_at, predict
     from phyir.io import load_scene
     from phyir.projection import DepthSurface, probe_positions, project_probes
 
     root = Path(root)
-    files = read_manifest(root)[split][:limit]
-    if not files:
-        raise ValueError(f"{root}: split {split!r} is empty")
-    meters = {k: M.MetricMeter() for k in ("model/lnet", "model/projection", "projection_gt_geometry",
-                                           "constant")}
+    files = split_files(root, split, limit)
+    means = dataset_means(root, "train") if split != "train" and read_manifest_has(root, "train") else None
+    methods = ["model/lnet", "model/projection", "projection_gt_geometry", "constant"]
+    meters = {k: M.MetricMeter() for k in methods + (["dataset_means"] if means is not None else [])}
     seconds = []
-    for i, name in enumerate(files):
-        gt = load_scene(root / name)
+    for i, path in enumerate(files):
+        name = path.name
+        gt = load_scene(path)
         if gt.probes is None:
-            raise ValueError(f"{root / name}: ground truth has no probes")
+            raise ValueError(f"{path}: ground truth has no probes")
         t0 = time.perf_counter()
         pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
                                   probes=None, masks={}),
@@ -155,6 +208,10 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
             "constant": pixel_metrics(base, gt) | lighting_metrics(
                 base.probes.reshape(Hp * Wp, 3, *size)[cells], gt_p, gt_pos, **kw),
         }
+        if means is not None:
+            mb = means_baseline(gt, means)
+            rows["dataset_means"] = pixel_metrics(mb, gt) | lighting_metrics(
+                mb.probes.reshape(Hp * Wp, 3, *size)[cells], gt_p, gt_pos, **kw)
         for k, v in rows.items():
             meters[k].add(v)
         if log is not None:
@@ -164,6 +221,13 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
     out = {k: m.result() for k, m in meters.items()}
     out["model/lnet"]["predict_seconds"] = sum(seconds) / len(seconds)
     return out
+
+
+def read_manifest_has(root: str | os.PathLike, split: str) -> bool:
+    """Whether the dataset's manifest lists any ``split`` scene that exists."""
+    from phyir.data import read_manifest
+
+    return any((Path(root) / f).is_file() for f in read_manifest(root)[split])
 
 
 def _resample_probes(p: Tensor, size: tuple[int, int]) -> Tensor:

@@ -221,6 +221,29 @@ def test_cli_eval_on_predictions_and_on_a_dataset(tmp_path, weights, capsys):
     assert cli(["eval", "--data", str(tmp_path / "data"), "--split", "val", "--weights", str(weights),
                 "--probes-per-scene", "8", "--relight", "2", "--spp", "8", "--markdown", str(md)]) == 0
     text = md.read_text()
-    for row in ("model/lnet", "model/projection", "projection_gt_geometry", "constant"):
+    for row in ("model/lnet", "model/projection", "projection_gt_geometry", "constant", "dataset_means"):
         assert f"| {row} |" in text
     assert cli(["eval", "--gt", str(tmp_path / "gt")]) == 2
+
+
+def test_dataset_means_baseline(tmp_path):
+    from phyir.data import exposure_scale
+    from phyir.evaluation import dataset_means, means_baseline
+
+    write_dataset(tmp_path, n_train=2, n_val=1, H=32, W=64, grid=(2, 4), probe_size=(4, 8))
+    train = [load_scene(tmp_path / f"scene_{i:06d}.exr") for i in range(2)]
+    means = dataset_means(tmp_path)
+    # depth over every pixel, materials over non-emissive pixels, the probe over all probes
+    want = float(torch.stack([s.depth for s in train]).mean())
+    assert float(means["depth"]) == pytest.approx(want, rel=1e-4)
+    keep = torch.stack([s.masks["emission"] < 0.5 for s in train]).expand(-1, 3, -1, -1)
+    want = torch.stack([s.albedo for s in train]).transpose(0, 1)[keep.transpose(0, 1)].view(3, -1).mean(1)
+    assert torch.allclose(means["albedo"], want, rtol=1e-4)
+    norm = torch.cat([s.probes.reshape(-1, 3, 4, 8) * exposure_scale(s.image) for s in train])
+    assert torch.allclose(means["probe"], norm.mean(0), rtol=1e-4)
+    gt = load_scene(tmp_path / "scene_000002.exr")
+    b = means_baseline(gt, means)
+    b.validate()
+    assert torch.allclose(b.probes[1, 2] * exposure_scale(gt.image), means["probe"], rtol=1e-4)
+    assert float(b.roughness.max() - b.roughness.min()) == 0
+    assert float(b.depth[0, 0, 0]) == pytest.approx(float(means["depth"]))
