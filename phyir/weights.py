@@ -115,3 +115,23 @@ def load_model(path: str | os.PathLike | None = None, device: str | torch.device
     model = PhyIRModel(config)
     load_into(model, path, read)
     return model.to(device).eval()
+
+
+def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = None) -> Path:
+    """Store a trained export ``src`` as release weights ``dst``: float16 tensors (half the size; the
+    loader casts back) and ``src``'s sidecar with ``extra`` merged in."""
+    model = load_model(src)
+    info: dict = {}
+    if sidecar_path(src).is_file():
+        info = json.loads(sidecar_path(src).read_text())
+        info.pop("architecture", None)
+    info |= {"stored_as": "float16", "shipped_from": str(src)} | (extra or {})
+    return save_weights(model, dst, info, half=True)
+
+
+if __name__ == "__main__":  # python -m phyir.weights ship SRC DST
+    import sys
+
+    if len(sys.argv) != 4 or sys.argv[1] != "ship":
+        sys.exit("usage: python -m phyir.weights ship SRC.safetensors DST.safetensors")
+    print(ship(sys.argv[2], sys.argv[3]))

@@ -239,6 +239,24 @@ def test_weights_round_trip_and_refusals(tmp_path):
         load_model(tmp_path / "missing.safetensors")
 
 
+def test_ship_stores_half_precision_with_the_sidecar(tmp_path):
+    import json
+
+    from phyir.weights import ship
+
+    model = _model()
+    src = save_weights(model, tmp_path / "run.safetensors", {"data": {"resolution": "128x256"}})
+    dst = ship(src, tmp_path / "ship" / "phyir-lite.safetensors", {"eval": {"depth.abs_rel": 0.2}})
+    assert dst.stat().st_size < 0.6 * src.stat().st_size
+    side = json.loads((tmp_path / "ship" / "phyir-lite.json").read_text())
+    assert side["data"]["resolution"] == "128x256" and side["stored_as"] == "float16"
+    assert side["eval"]["depth.abs_rel"] == 0.2
+    again = load_model(dst)
+    for k, v in model.state_dict().items():  # float16 rounding only
+        if v.is_floating_point():
+            assert torch.allclose(again.state_dict()[k], v, rtol=1e-3, atol=1e-4), k
+
+
 def test_cli_reports_bad_weights_in_one_line(tmp_path, capsys):
     write_dataset(tmp_path / "data", n_train=2, n_val=0, H=H, W=W, grid=GRID, probe_size=PROBE)
     bad = tmp_path / "bad.safetensors"
