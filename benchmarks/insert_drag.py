@@ -29,17 +29,22 @@ def main() -> int:
     ap.add_argument("--scene", default=None, help="scene file (default: the analytic box room, 512x1024)")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--subdivisions", type=int, default=5, help="icosphere subdivisions (5: 20480 faces)")
+    ap.add_argument("--relight-tolerance", type=float, default=None,
+                    help="override DRAGGING.relight_tolerance (0: relight every frame, as before it existed)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
     args = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as phyir.cli: idle torch threads must not spin
+    import dataclasses
+
     import moderngl
     import numpy as np
     import torch
     import trimesh
 
+    import viewer.insertion
     from phyir import pano, placement
     from phyir.io import load_scene
-    from viewer.insertion import DRAGGING, InsertionPass, InsertionRenderer
+    from viewer.insertion import InsertionPass, InsertionRenderer
     from viewer.objects import PRESETS, SceneObject, load_mesh
     from viewer.renderer import Display, Frame, Renderer
     from viewer.view import EquirectView
@@ -50,6 +55,10 @@ def main() -> int:
         from insert_fixtures import box_room
 
         scene = box_room(512, 1024, grid=(32, 64), probe_size=(16, 32))
+    if args.relight_tolerance is not None:
+        viewer.insertion.DRAGGING = dataclasses.replace(viewer.insertion.DRAGGING,
+                                                        relight_tolerance=args.relight_tolerance)
+    DRAGGING = viewer.insertion.DRAGGING
     H, W = scene.size
     size = (1024, 512)
     ctx = moderngl.create_standalone_context(backend="egl", require=330)
@@ -92,6 +101,7 @@ def main() -> int:
     draw()
     # bare and dragging frames alternate, so both see the same load on a shared machine
     bare, dragging, cpu = [], [], []
+    relit, last = [0], [None]  # frames whose lighting was recomputed
     for k in range(args.frames):
         renderer.overlay_passes.remove(hook)
         bare.append(timed(draw))
@@ -101,10 +111,13 @@ def main() -> int:
             p = drag.move((float(su) + 1.5 * k, float(sv) - 8))
             obj.position, obj.rotation, obj.support = p.position, p.rotation, (p.contact, p.normal)
             t = time.perf_counter()
-            ins.object_state(obj, DRAGGING)
+            lighting = ins.object_state(obj, DRAGGING).lighting
             cpu.append(time.perf_counter() - t)
+            relit[0] += lighting is not last[0]
+            last[0] = lighting
             draw()
         dragging.append(timed(step))
+    drag_rect = hook.last_rect
     hook.dragging = False
     draw()
     still = [timed(draw) for _ in range(max(3, args.frames // 4))]
@@ -114,7 +127,9 @@ def main() -> int:
         "renderer": ctx.info["GL_RENDERER"], "bare_ms": med(bare), "dragging_ms": med(dragging),
         "dragging_lighting_cpu_ms": med(cpu), "still_full_quality_ms": med(still),
         "dragging_ratio": med(dragging) / med(bare), "still_ratio": med(still) / med(bare),
-        "region": hook.last_rect, "threads": torch.get_num_threads(),
+        "region": hook.last_rect, "dragging_region": drag_rect, "threads": torch.get_num_threads(),
+        "relight_tolerance": DRAGGING.relight_tolerance, "relit_frames": relit[0],
+        "load_average": os.getloadavg()[0],
     }
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "insert_drag.json"), "w") as f:

@@ -357,7 +357,8 @@ def summarize(res: dict) -> dict:
 def _sample_count(classes: dict[str, Tensor], spp: int, rough_all: bool = False) -> int:
     """Direction samples (and reflected look-ups) a frame takes with these pixel classes."""
     half = (spp + 1) // 2
-    return (spp * len(classes["std"]) + (spp if rough_all else half) * len(classes["rough"])
+    return (spp * (len(classes["std"]) + len(classes["spec"]))
+            + (spp if rough_all else half) * len(classes["rough"])
             + half * len(classes["mirror_d"]) + len(classes["mirror"]))
 
 
@@ -685,3 +686,87 @@ def plot(result: dict, path: Path) -> None:
     with atomic_write(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
+
+
+def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[str], None] = print) -> dict:
+    """Errors only (no timing): uniform against importance sampling at the benchmark's sample counts
+    on one scene, and the importance-sampled spp that reaches each uniform error (layers image,
+    diffuse, specular).  Independent of machine load, so usable where the full benchmark can't run."""
+    from phyir.render import render_scene
+
+    cfg = dict(FULL if cfg is None else cfg)
+    H, W = cfg["size"]
+    sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"])
+    mask = _shaded_mask(sc)
+    ref = Reference(sc, cfg["ref_spp"], mask)
+    rows = []
+    for method, spps in (("uniform", cfg["uniform_spp"]), ("importance", cfg["is_spp"])):
+        for spp in spps:
+            rows.append({"method": method, "spp": spp, **ref.errors(render_scene(sc, spp=spp, method=method,
+                                                                                   seed=7))})
+            log(f"  {kind} {method:<10} spp {spp:>4}  err image {rows[-1]['err_image']:.4f} "
+                f"diffuse {rows[-1]['err_diffuse']:.4f} specular {rows[-1]['err_specular']:.4f}")
+    isr = [r for r in rows if r["method"] == "importance"]
+    ratios = []
+    for layer in ("image", "diffuse", "specular"):
+        err = [r[f"err_{layer}"] for r in isr]
+        if not all(math.isfinite(e) and e > 0 for e in err):
+            continue
+        for r in rows:
+            if r["method"] == "uniform":
+                need = _loglog([r_["spp"] for r_ in isr], err, r[f"err_{layer}"])
+                if r[f"err_{layer}"] >= err[0]:  # beaten at the smallest spp measured: a lower bound
+                    need = float(isr[0]["spp"])
+                ratios.append({"layer": layer, "uniform_spp": r["spp"], "uniform_err": r[f"err_{layer}"],
+                               "is_spp_same_err": need, "sample_ratio": r["spp"] / need,
+                               "lower_bound": r[f"err_{layer}"] >= err[0]})
+                bound = " (lower bound)" if ratios[-1]["lower_bound"] else ""
+                log(f"  {layer}: uniform {r['spp']} spp = importance {need:.1f} spp: "
+                    f"{r['spp'] / need:.1f}x fewer samples{bound}")
+    return {"kind": kind, "config": cfg, "reference_noise": ref.noise, "rows": rows, "ratios": ratios}
+
+
+def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repeats: int = 5,
+                    log: Callable[[str], None] = print) -> dict:
+    """CPU time (median, min of ``repeats`` interleaved calls after a warm-up) of the prefiltered path
+    (prefiltering included) and of importance sampling at ``spps`` on a 128x256 bench scene."""
+    from phyir import prefilter
+    from phyir.render import render_scene
+
+    sc = bench_scene(kind)
+
+    def make(method: str, spp: int) -> Callable[[], object]:
+        def call() -> object:
+            prefilter._cache.clear()
+            return render_scene(sc, spp=max(spp, 1), method=method, seed=7)
+        return call
+
+    calls = {("prefiltered", 0): make("prefiltered", 0), **{("importance", n): make("importance", n)
+                                                           for n in spps}}
+    cpu: dict = {k: [] for k in calls}
+    for fn in calls.values():
+        fn()
+    for _ in range(repeats):
+        for k, fn in calls.items():
+            c0 = time.process_time()
+            fn()
+            cpu[k].append(time.process_time() - c0)
+    rows = [{"method": m, "spp": n, "cpu_median_s": statistics.median(v), "cpu_min_s": min(v)}
+            for (m, n), v in cpu.items()]
+    for r in rows:
+        log(f"  {kind} {r['method']:<11} spp {r['spp']:>4}  CPU median {r['cpu_median_s'] * 1e3:.1f} ms, "
+            f"min {r['cpu_min_s'] * 1e3:.1f} ms")
+    return {"kind": kind, "rows": rows}
+
+
+if __name__ == "__main__":
+    # python -m phyir.bench_render OUT.json [glossy|metal ...]: errors only (sample_ratios)
+    # python -m phyir.bench_render OUT.json --prefiltered-cpu [kind]: prefiltered_cpu
+    import sys
+
+    torch.set_num_threads(1)
+    if sys.argv[2:3] == ["--prefiltered-cpu"]:
+        res = prefiltered_cpu(*sys.argv[3:4])
+    else:
+        res = {k: sample_ratios(k) for k in (sys.argv[2:] or ["glossy"])}
+    _write_json(Path(sys.argv[1]), res)

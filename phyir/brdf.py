@@ -32,10 +32,15 @@ def f0_from_material(base_color: Tensor, metallic: Tensor) -> Tensor:
 
 
 def ggx_d(n_dot_h: Tensor, alpha: Tensor) -> Tensor:
-    """GGX normal distribution D(h) = a^2 / (pi ((n.h)^2 (a^2 - 1) + 1)^2)."""
+    """GGX normal distribution D(h) = a^2 / (pi ((1 - (n.h)^2) + (n.h)^2 a^2)^2).
+
+    The denominator is written as (1 - c)(1 + c) + c^2 a^2 rather than c^2 (a^2 - 1) + 1: near the
+    peak (c -> 1, tiny a) the latter cancels in float32 (1 - c^2 ~ a^2 ~ 1e-6 is lost to rounding),
+    the former keeps both terms' relative precision.
+    """
     a2 = alpha * alpha
     c = n_dot_h.clamp(0, 1)
-    t = c * c * (a2 - 1) + 1
+    t = (1 - c) * (1 + c) + c * c * a2
     return a2 / (math.pi * t * t)
 
 

@@ -71,6 +71,7 @@ def normalize_scene(scene: PanoScene) -> PanoScene:
 
 def aces(x: Tensor) -> Tensor:
     """Narkowicz's fit of the ACES filmic tone curve, [0, inf) -> [0, 1)."""
+    x = x.clamp(max=1e4)  # the curve is 1 long before; x^2 of x > 1e19 would overflow to inf/inf = NaN
     return ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0, 1)
 
 
@@ -263,6 +264,7 @@ class TensorSceneDataset(_ScenesBase):
 
 
 F16_MAX = 65504.0
+CACHE_SCALE = "cache.exposure_scale"  # meta key of the factor the cached radiance carries
 
 
 def _write_cached(path: Path, scene: PanoScene) -> None:
@@ -270,16 +272,17 @@ def _write_cached(path: Path, scene: PanoScene) -> None:
 
     from phyir.io import atomic_write
 
-    # float16 spans 6e-8 .. 65504: store the exposure-normalised scene (every later step is invariant
-    # to the image's scale), else a 1e6-bright scene overflows to Inf and a 1e-6-dark one loses its bits
-    scene = normalize_scene(scene)
+    # float16 spans 6e-8 .. 65504: radiance is stored exposure-normalised and scaled back on reading,
+    # else a 1e6-bright scene overflows to Inf and a 1e-6-dark one loses its bits
+    s = float(exposure_scale(scene.image))
     f16 = lambda t: t.clamp(-F16_MAX, F16_MAX).half().contiguous()  # noqa: E731
-    tensors = {name: f16(t) for name, t in scene.layers()}
+    tensors = {name: f16(t * s if name == "image" else t) for name, t in scene.layers()}
     if scene.probes is not None:
-        tensors["probes"] = f16(scene.probes)
+        tensors["probes"] = f16(scene.probes * s)
+    meta = {**{k: str(v) for k, v in scene.meta.items()}, CACHE_SCALE: repr(s)}
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as tmp:
-        Path(tmp).write_bytes(save(tensors, metadata={k: str(v) for k, v in scene.meta.items()}))
+        Path(tmp).write_bytes(save(tensors, metadata=meta))
 
 
 def _read_cached(path: Path) -> PanoScene:
@@ -288,6 +291,10 @@ def _read_cached(path: Path) -> PanoScene:
     with safe_open(str(path), framework="pt") as f:
         t = {k: f.get_tensor(k).float() for k in f.keys()}
         meta = dict(f.metadata() or {})
+    s = float(meta.pop(CACHE_SCALE, "1"))
+    for k in ("image", "probes"):
+        if k in t:
+            t[k] = t[k] / s
     masks = {k[5:]: t.pop(k) for k in list(t) if k.startswith("mask.")}
     if "normal" in t:
         t["normal"] = F.normalize(t["normal"], dim=-3, eps=1e-6)

@@ -39,6 +39,9 @@ GM_LAYERS = ("depth", "normal", "albedo", "roughness", "metallic")
 LIGHTING = ("projection", "lnet")
 DEFAULT_LIGHTING = "projection"
 DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training resolution
+# every layer comes back at the input's size: ~140 bytes per input pixel at the peak
+# (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
+MAX_PREDICT_SIZE = (4096, 8192)
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
 
@@ -79,8 +82,13 @@ def load_cached_model(weights: str | os.PathLike | None = None, device: str | to
         try:
             res = json.loads(side.read_text())["data"]["resolution"]
             net_size = tuple(int(x) for x in str(res).split("x"))  # type: ignore[assignment]
-        except (KeyError, TypeError, ValueError):
-            pass
+        except KeyError:
+            pass  # no recorded resolution: the default
+        except (TypeError, ValueError) as e:  # (json.JSONDecodeError is a ValueError)
+            import warnings
+
+            warnings.warn(f"{side}: unreadable weights sidecar ({e}); assuming the network size "
+                          f"{net_size[0]}x{net_size[1]}", UserWarning, stacklevel=2)
     with _MODELS_LOCK:
         if key is not None:
             _MODELS[key] = (model, net_size)
@@ -124,6 +132,26 @@ def load_input(source: str | os.PathLike | Tensor | PanoScene,
     if H < 16 or abs(W / H - 2) > 0.02:
         raise InputError(None, f"expected an equirectangular panorama (W = 2H), got {H}x{W}")
     return scene, True if hdr is None else hdr
+
+
+def _header_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(H, W) of an image or scene file from its header (the main part's, for OpenEXR)."""
+    from phyir import exr, io, ldr, rgbe
+
+    fmt = io.sniff(path)
+    if fmt == "exr":
+        headers = exr.read_headers(path)
+        h = next((h for h in headers if h.name == "scene"), headers[0])
+    else:
+        h = rgbe.read_header(path) if fmt == "hdr" else ldr.read_info(path)
+    return h.height, h.width
+
+
+def _check_predict_size(path: str | os.PathLike | None, H: int, W: int) -> None:
+    Hm, Wm = MAX_PREDICT_SIZE
+    if H * W > Hm * Wm:
+        raise InputError(path, f"{H}x{W} is too large to predict at full resolution (at most {Hm}x{Wm}, "
+                               "which needs ~5 GB of memory); resize the panorama first")
 
 
 def net_size_for(H: int, default: tuple[int, int]) -> tuple[int, int]:
@@ -219,7 +247,10 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
 
     _check_cancel(cancel)
     t = time.perf_counter()
+    if isinstance(source, (str, os.PathLike)):
+        _check_predict_size(source, *_header_size(source))  # before decoding a huge file
     scene, is_hdr = load_input(source, hdr)
+    _check_predict_size(None, *scene.size)
     want = set(OUTPUTS if outputs is None else outputs)
     unknown = want - set(OUTPUTS)
     if unknown:
@@ -311,13 +342,15 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
         assert lnet_grid is not None
         lnet_grid = lnet_grid.cpu()
         if lighting == "projection":
-            proj_scene = PanoScene(image=scene.image.float(), depth=geo.get("depth", out.depth),
+            # in exposure-normalised units, like the networks: sums over a panorama of radiance
+            # near float32's limit would overflow
+            proj_scene = PanoScene(image=img * s, depth=geo.get("depth", out.depth),
                                    normal=geo.get("normal", out.normal))
         if probes == "grid":
             if lighting == "projection":
                 from phyir.projection import projected_probe_grid
 
-                out.probes = projected_probe_grid(proj_scene, lnet_grid)
+                out.probes = projected_probe_grid(proj_scene, lnet_grid * s) / s
             else:
                 out.probes = lnet_grid
         else:
@@ -326,7 +359,7 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
             if lighting == "projection":
                 from phyir.projection import project_probes
 
-                fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb)[0]
+                fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb * s)[0] / s
             out.probes = fb[:, None]
             out.meta["probe_layout"] = "points"
         computed.append("probes")

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from phyir import pano
-from phyir.lights_extract import Light, extract_lights, luminance
+from phyir.lights_extract import LUMA, Light, extract_lights, luminance
 from phyir.projection import DepthSurface, probe_positions
 from phyir.scene import PanoScene, SceneError
 
@@ -53,6 +53,13 @@ def _quadrature(h: int, w: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     vv, uu = torch.meshgrid(i_f, jf, indexing="ij")
     idx, wgt = pano.bilinear_taps(uu.reshape(-1), vv.reshape(-1), h, w)
     return d, omega, idx, wgt
+
+
+@lru_cache(maxsize=4)
+def _texels(h: int, w: int) -> tuple[Tensor, Tensor]:
+    """Texel-centre directions ``[3, h*w]`` and solid angles ``[h*w]`` of an h x w probe."""
+    return (pano.directions(h, w, dtype=torch.float64).reshape(3, -1),
+            pano.solid_angles(h, w, dtype=torch.float64).reshape(-1))
 
 
 def _cosine_rows(h: int, w: int, r: Tensor) -> Tensor:
@@ -191,7 +198,10 @@ class PlacedLight:
 
 AXES = ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0),
         (0.0, 0.0, -1.0))  # the ambient cube's order (shaders/composite.frag)
-HALO = 3.0  # an object's ambient occlusion fades out at this many bounding radii
+# an object's ambient occlusion fades out at this many bounding radii: on the floor a sphere's form
+# factor falls as (r/d)^3, and the floor beyond 3 radii still holds a third of its occlusion
+HALO = 5.0
+N_HALO = 26  # points of the halo sphere that open place_lights' reach points
 
 
 @dataclass
@@ -207,6 +217,7 @@ class ObjectLighting:
     peak_power: Tensor  # [K, 3]
     ambient: Tensor  # [6, 3] irradiance / pi around +-x, +-y, +-z (an ambient cube)
     ambient_residual: Tensor  # [6, 3] the same without the dominant lights
+    ambient_bounce: Tensor  # [6, 3] the ambient cube the object's own surface gets (support_shadowed)
     residual: Tensor  # [3, h, w] the probe without its dominant lights (what occlusion removes)
     lights: list[PlacedLight] = field(default_factory=list)
     reach: Tensor | None = None  # [P, 3] points bounding what the object changes (halo, shadows)
@@ -227,7 +238,7 @@ def place_lights(lights: list[Light], centre: Tensor, surface: DepthSurface | No
     light, where ``rays`` rays past the object's silhouette (away from the light) meet the scene.
     One march of the depth surface (``steps`` steps) for all rays."""
     c = centre.double().reshape(1, 3)
-    halo = c + HALO * radius * _fibonacci(26)
+    halo = c + HALO * radius * _fibonacci(N_HALO)
     if not lights:
         return [], halo
     dirs = torch.stack([lt.direction.double() for lt in lights])  # [L, 3]
@@ -278,18 +289,70 @@ def correct_light_distance(field: ProbeField, centre: Tensor, probe: Tensor, pla
     return probe.clamp(min=0)
 
 
+def support_shadowed(probe: Tensor, residual: Tensor, centre: Tensor, radius: float,
+                     plane: tuple[Tensor, Tensor] | None, ambient: Tensor, lights: list[PlacedLight]
+                     ) -> Tensor:
+    """The ambient cube ``[6, 3]`` of the object's own surface: the probe with the support plane
+    darkened by the object's shadow on it.  The probe was captured without the object, so it sees
+    the floor under the object fully lit; what the object bounces onto its receivers (composite.frag)
+    comes mostly from that floor.  A probe direction meeting the plane at ``p`` keeps the share
+    ``1 - f(p)`` of its radiance, ``f`` the irradiance the bounding sphere hides at ``p``: its form
+    factor (``sin^2 cos``) times the ``residual``'s irradiance plus each light it blocks, over the
+    plane's irradiance (luminance, in [0, 1]); ``ambient``: the probe's cube, returned as it is
+    without a plane."""
+    if plane is None:
+        return ambient.clone()
+    h, w = probe.shape[-2:]
+    d, omega = _texels(h, w)
+    radiance = probe.double().reshape(3, -1)  # texel centres: the correction is smooth in direction
+    c = centre.double().reshape(3, 1)
+    q, n = (torch.as_tensor(x, dtype=torch.float64).reshape(3, 1) for x in plane)
+    n = n / n.norm()
+    height = float(((c - q) * n).sum())
+    down = -(d * n).sum(0)  # cos toward the plane
+    t = height / down.clamp(min=1e-6)
+    hits = (down > 1e-3) & (height > 0)
+    x = c + t * d  # [3, F] points on the plane
+    to_c = c - x
+    dist2 = (to_c * to_c).sum(0).clamp(min=1e-12)
+    sin2 = (radius * radius / dist2).clamp(max=1.0)
+    form = sin2 * (to_c * n).sum(0).clamp(min=0) / dist2.sqrt()
+    luma = torch.tensor(LUMA, dtype=torch.float64)
+    normal = (tuple(round(float(v), 3) for v in n[:, 0]),)
+    e_res, e_all = (math.pi * float(luma @ irradiance_at(x, normal)[0].double()) for x in (residual, probe))
+    hidden = form * e_res
+    for pl in lights:
+        ld = pl.light.direction.double().reshape(3, 1)
+        cos_l = float((ld * n).sum())
+        if cos_l <= 0:
+            continue
+        along = (to_c * ld).sum(0)  # the sphere's centre along the ray toward the light
+        miss = (dist2 - along * along).clamp(min=0).sqrt()
+        blocked = ((along > 0) & (miss < radius)).double()
+        hidden = hidden + blocked * cos_l * float(luma @ pl.light.power.double())
+    keep = torch.where(hits, 1 - (hidden / max(e_all, 1e-12)).clamp(0, 1), torch.ones_like(hidden))
+    axes = torch.tensor(AXES, dtype=torch.float64)
+    k = (axes @ d).clamp(min=0) * omega  # [6, F]
+    return ((radiance * keep) @ k.T / k.sum(1)).T.to(ambient.dtype)
+
+
 def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | None = None,
-                    max_lights: int = 4, radius: float = 0.0, steps: int = 32) -> ObjectLighting:
+                    max_lights: int = 4, radius: float = 0.0, steps: int = 32,
+                    support: tuple[Tensor, Tensor] | None = None, probe: Tensor | None = None
+                    ) -> ObjectLighting:
     """The probe at ``centre`` (interpolated, its near lights corrected for the distance between
     the probes and ``centre``), its maps and its placed dominant lights; ``radius``: the object's
-    bounding radius (for the reach points), ``steps``: depth-marching steps."""
-    probe = field.probe_at(centre)
+    bounding radius (for the reach points), ``steps``: depth-marching steps, ``support``: (point,
+    normal) of the surface the object rests on (:func:`support_shadowed`); ``probe``:
+    ``field.probe_at(centre)`` when the caller has it already."""
+    probe = field.probe_at(centre) if probe is None else probe
     lights, residual = extract_lights(probe, max_lights=max_lights)
     placed, reach = place_lights(lights, centre, surface, radius, steps=steps)
     probe = correct_light_distance(field, centre, probe, placed)
     dirs, power, spec = peak_samples(probe)
+    ambient, ambient_res = irradiance_at(probe, AXES), irradiance_at(residual, AXES)
+    bounce = support_shadowed(probe, residual, centre, radius, support, ambient, placed)
     return ObjectLighting(centre=centre.float(), probe=probe, mips=probe_mips(probe),
                           irradiance=irradiance_map(probe), spec_mips=probe_mips(spec), peak_dirs=dirs,
-                          peak_power=power, ambient=irradiance_at(probe, AXES),
-                          ambient_residual=irradiance_at(residual, AXES), residual=residual, lights=placed,
-                          reach=reach.float())
+                          peak_power=power, ambient=ambient, ambient_residual=ambient_res,
+                          ambient_bounce=bounce, residual=residual, lights=placed, reach=reach.float())

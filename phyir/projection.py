@@ -269,7 +269,7 @@ def bright_sources(image: Tensor, depth: Tensor, normal: Tensor, factor: float =
     lum = image.mean(0)
     thr = factor * float((lum * omega).sum() / omega.sum())
     frac = (1 - thr / lum.clamp_min(1e-30)).clamp_min(0)
-    if not bool((frac > 0).any()):
+    if not bool((lum > thr).any()):  # (a black panorama has thr = 0 and no excess anywhere)
         return image, None
     excess = image * frac
     d = depth[0].float().clamp_min(1e-3)

@@ -11,12 +11,14 @@ vectors, materials and lighting:
 Methods
 -------
 ``"importance"`` (default)
-    Monte Carlo, eq. 6 of the supplement: ``ceil(spp/2)`` cosine-weighted and ``floor(spp/2)`` GGX
-    half-vector samples per pixel, combined with the balance heuristic of multiple importance sampling
-    (every sample is weighted by ``1 / (n_d p_d + n_s p_s)``), which is unbiased for both lobes.
-    Metals keep the cosine samples too: they cover the GGX lobe's tails, where D-proportional
-    half-vector sampling at grazing views has large weights (measured: half/half beats 1/8-1/4
-    cosine and GGX only on metals at R = 0.3-0.5).
+    Monte Carlo, eq. 6 of the supplement, plus environment sampling: cosine-weighted, GGX
+    half-vector and environment samples (∝ probe radiance x clamped cosine, per pixel: see
+    :class:`_EnvSampler`) in the ratio :data:`SPLIT` (1 : 1 : 2) for pixels with a diffuse lobe,
+    :data:`SPEC_SPLIT` (1 : 1 : 0) for metals, combined with the balance heuristic of multiple
+    importance sampling (every sample is weighted by ``1 / (n_d p_d + n_s p_s + n_e p_e)``), which is
+    unbiased for both lobes.  Metals keep the cosine samples: they cover the GGX lobe's tails, where
+    D-proportional half-vector sampling at grazing views has large weights (measured: half/half
+    beats 1/8-1/4 cosine and GGX only on metals at R = 0.3-0.5).
 ``"uniform"``
     ``spp`` directions uniform on the hemisphere (the baseline of the benchmark).
 ``"prefiltered"``
@@ -40,8 +42,9 @@ Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/ren
              direction times the lobe's directional albedo (DFG table); slight bias.
 ``rough``    when the specular lobe can't exceed :data:`ROUGH_SPEC_RATIO` of the diffuse lobe under
              any lighting (π max_l f_s / (B(1-M)) from :func:`phyir.prefilter.specular_peak_table`)
-             the GGX samples are skipped; the cosine samples still estimate the specular lobe, so
-             this costs variance, not bias.  ``ROUGH_ALL_COSINE = True`` spends all ``spp`` on the
+             pixels take half of ``spp``, cosine and environment samples only (:data:`ROUGH_SPLIT`),
+             which still estimate the specular lobe, so this costs variance, not bias.
+             ``ROUGH_ALL_COSINE = True`` spends all ``spp`` on the
              cosine lobe there instead (no time saved, less noise).
 
 Precision: the layer always computes in float32 (float64 if given float64) with autocast disabled,
@@ -81,6 +84,11 @@ SKIPS = frozenset({"invalid", "emissive", "mirror", "rough"})
 MIRROR_ROUGHNESS = 0.1
 ROUGH_SPEC_RATIO = 0.2
 ROUGH_ALL_COSINE = False
+# share of the samples per strategy (cosine, GGX, environment): pixels with both lobes, pixels
+# without a diffuse lobe (metals), pixels that sample the diffuse lobe only (rough skip, mirrors)
+SPLIT = (1, 1, 2)
+SPEC_SPLIT = (1, 1, 0)
+ROUGH_SPLIT = (1, 0, 1)
 CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
 _POLE_EPS = 1e-6
 
@@ -122,18 +130,27 @@ def _mix(table: Tensor, index: Tensor, weight: Tensor) -> Tensor:
     return F.embedding_bag(index, table, per_sample_weights=weight, mode="sum")
 
 
-def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: Tensor,
-              texel_major: int = 0, channels_first: bool = False) -> Tensor:
+def _unit_uv(d: Tensor) -> tuple[Tensor, Tensor]:
+    """Equirect coordinates of directions ``d [..., 3]`` scaled to [0, 1): multiply by (w, h)."""
+    return pano.dir_to_uv(_safe_dirs(d) if d.requires_grad else d, 1, 1, dim=-1)
+
+
+def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: Tensor | None,
+              texel_major: int = 0, channels_first: bool = False,
+              uv: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """Radiance ``[p, S, 3]`` in directions ``d [p, S, 3]`` of pixels with probes ``index/weight [p, K]``.
 
     ``texels`` is probe-major channels-last ``[N*h*w, 3]``, texel-major ``[h*w*N, 3]`` when
     ``texel_major`` = N, or the probes themselves ``[N, 3, h, w]`` when ``channels_first``.
+    ``uv`` (from :func:`_unit_uv`, ``[p, S]`` each) replaces ``d`` when several maps are read in the
+    same directions.
     """
-    p, s = d.shape[:2]
+    if uv is None:
+        u, v = pano.dir_to_uv(_safe_dirs(d) if d.requires_grad else d, h, w, dim=-1)
+    else:
+        u, v = uv[0] * w, uv[1] * h
+    p, s = u.shape[:2]
     k = index.shape[1]
-    if d.requires_grad:
-        d = _safe_dirs(d)
-    u, v = pano.dir_to_uv(d, h, w, dim=-1)
     tidx, twgt = pano.bilinear_taps(u, v, h, w)  # [p, S, 4]
     ps, ts = (1, texel_major) if texel_major else (h * w * (3 if channels_first else 1), 1)
     idx = (index[:, None, :, None] * ps + tidx[:, :, None, :] * ts).reshape(p * s, k * 4)
@@ -146,15 +163,189 @@ def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: 
 
 
 # ---------------------------------------------------------------------------------------------
+# environment importance sampling: per-probe texel distributions, mixed like the radiance
+
+
+@dataclass
+class _EnvSampler:
+    """Per-probe texel weights for sampling directions ∝ radiance x solid angle x clamped cosine.
+
+    A texel's weight ``e[k, t]`` is the mean of probe k's bilinear interpolant over texel t times its
+    solid angle (plus a small floor).  Texels are grouped in cells of ``f x f`` (``f = 1``, cells are
+    texels, unless probes have more than :data:`ENV_CELL_ROWS` rows).  A pixel with normal n mixing
+    probes with weights w_k gives cell c the weight ``W_c = cos_c(n) sum_k w_k E[k, c]`` (E: the
+    cells' sums of e; cos_c: the mean of max(n.l, 0) over the cell's bounding cap, see
+    :func:`_env_cells`) and picks a cell by ``W`` (its row with u1, then its column with u2: monotone
+    in both, so low-discrepancy points stay stratified), then (``f > 1``) a probe with probability
+    ∝ w_k E[k, c] and a texel by probe k's CDF within the cell, then a point uniform in solid angle
+    within the texel.  The density in solid angle is exactly
+    ``cos_c(n) sum_k w_k e[k, t] / (Ω_t sum_c' W_c')`` (:func:`_env_pdf`).
+    """
+
+    bounds: Tensor  # [N*C*f*f] float64: (probe*C + cell) + inclusive CDF within the cell, cell-major
+    perm: Tensor  # [C*f*f] long: texel of each cell-major position
+    density: Tensor  # [N*h*w, 1]: e / Ω (unnormalised)
+    cell_sum: Tensor  # [N, C]: E
+    cell_dir: Tensor  # [C, 3] cell centres
+    cell_cos_r: Tensor  # [C] cos / sin of the angular radius of each cell's bounding cap
+    cell_sin_r: Tensor
+    h: int
+    w: int
+    f: int
+
+
+ENV_FLOOR = 1e-3  # of a probe's mean texel weight: keeps every texel reachable
+ENV_CELL_ROWS = 16  # per-pixel cell tables have at most this many rows (2 x as many columns)
+
+
+def _cell_factor(h: int, w: int) -> int:
+    f = 1
+    while h % (2 * f) == 0 and w % (2 * f) == 0 and h // f > ENV_CELL_ROWS:
+        f *= 2
+    return f
+
+
+@lru_cache(maxsize=8)
+def _cell_geometry(h: int, w: int, f: int, dev: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Cell-major texel order, cell centre directions and the cos / sin of their caps' radii."""
+    hc, wc = h // f, w // f
+    ci, cj, a, b = torch.meshgrid(torch.arange(hc), torch.arange(wc), torch.arange(f), torch.arange(f),
+                                  indexing="ij")
+    perm = ((ci * f + a) * w + cj * f + b).reshape(-1)
+    centre = pano.directions(hc, wc, dtype=torch.float64).permute(1, 2, 0)  # [hc, wc, 3]
+    i = torch.arange(hc + 1, dtype=torch.float64)[:, None] * f
+    j = torch.arange(wc + 1, dtype=torch.float64)[None] * f
+    corner = pano.uv_to_dir(j.expand(hc + 1, wc + 1), i.expand(hc + 1, wc + 1), h, w, dim=-1)
+    cos_r = torch.ones(hc, wc, dtype=torch.float64)
+    for di in (0, 1):
+        for dj in (0, 1):
+            cos_r = torch.minimum(cos_r, (corner[di:di + hc, dj:dj + wc] * centre).sum(-1))
+    cos_r = cos_r.reshape(-1).clamp(-1, 1)
+    return perm.to(dev), centre.reshape(-1, 3).to(dev), cos_r.to(dev), torch.sqrt(1 - cos_r**2).to(dev)
+
+
+def _env_sampler(probes: Tensor) -> _EnvSampler:
+    """Build the per-probe tables once per call (no gradients: pdfs are detached)."""
+    with torch.no_grad():
+        N, _, h, w = probes.shape
+        dev, dt = probes.device, probes.dtype
+        lum = torch.nan_to_num(probes.detach().mean(1), nan=0.0, posinf=0.0).clamp(min=0)
+        # mean of the bilinear interpolant over each texel: [1, 6, 1] / 8 per axis (wrap, clamp)
+        lum = pano.circular_pad(lum[:, None], 1)[:, 0]
+        lum = (lum[:, :, :-2] + 6 * lum[:, :, 1:-1] + lum[:, :, 2:]) * 0.125
+        lum = (lum[:, :-2] + 6 * lum[:, 1:-1] + lum[:, 2:]) * 0.125  # [N, h, w]
+        omega = pano.solid_angles(h, w, dev, dt)
+        e = lum * omega
+        tiny = torch.finfo(dt).tiny * 1e3
+        e = (e + ENV_FLOOR * e.mean((1, 2), keepdim=True) + tiny).reshape(N, h * w)
+        f = _cell_factor(h, w)
+        perm, centre, cos_r, sin_r = _cell_geometry(h, w, f, dev)
+        C = perm.numel() // (f * f)
+        if f == 1:
+            E, bounds = e, e.new_zeros(0, dtype=torch.float64)
+        else:
+            ec = e[:, perm].reshape(N, C, f * f).double()
+            E = ec.sum(-1).to(dt)
+            cdf = ec.cumsum(-1) / ec.sum(-1, keepdim=True)
+            cdf[..., -1] = 1.0
+            bounds = (cdf + torch.arange(N * C, device=dev, dtype=torch.float64).reshape(N, C, 1)).reshape(-1)
+        density = (e / omega.reshape(1, -1)).reshape(-1, 1)
+    return _EnvSampler(bounds, perm, density, E, centre.to(dt), cos_r.to(dt), sin_r.to(dt), h, w, f)
+
+
+def _env_cells(env: _EnvSampler, n: Tensor, index: Tensor, weight: Tensor) -> tuple[Tensor, Tensor]:
+    """Per pixel ``[p, C]`` cosine factors of the cells and ``[p, C]`` cell weights (unnormalised).
+
+    The cosine factor of a cell is the mean of max(x, 0) for x uniform between the smallest and the
+    largest cosine to n over the cell's bounding cap: the cell's mean clamped cosine, up to the
+    cap's shape, and positive wherever part of the cell is above the horizon.
+    """
+    c = (n @ env.cell_dir.T).clamp(-1, 1)  # cos of the angle to each cell centre
+    s = torch.sqrt((1 - c * c).clamp(min=0))
+    cr, sr = env.cell_cos_r, env.cell_sin_r
+    hi = torch.where(c >= cr, torch.ones_like(c), c * cr + s * sr)  # cos(max(theta - r, 0))
+    lo = torch.where(c <= -cr, -torch.ones_like(c), c * cr - s * sr)  # cos(min(theta + r, pi))
+    part = hi.clamp(min=0) ** 2 / (2 * (hi - lo)).clamp(min=1e-12)
+    cos_w = torch.where(lo >= 0, (lo + hi) / 2, part)
+    return cos_w, cos_w * _mix(env.cell_sum, index, weight)
+
+
+def _invert(cdf: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
+    """Bin ``[..., S]`` of ``u [..., S]`` in the inclusive CDFs ``cdf [..., n]`` (last = 1) and the
+    position within the bin, in [0, 1)."""
+    n = cdf.shape[-1]
+    i = torch.searchsorted(cdf, u.contiguous(), right=True).clamp(max=n - 1)
+    lo = torch.where(i > 0, cdf.gather(-1, (i - 1).clamp(min=0)), torch.zeros_like(u))
+    frac = (u - lo) / (cdf.gather(-1, i) - lo).clamp(min=1e-300)
+    return i, frac.clamp(0, 1 - 2.0**-40)
+
+
+def _env_directions(env: _EnvSampler, cells: Tensor, index: Tensor, weight: Tensor, u: Tensor) -> Tensor:
+    """Directions ``[p, S, 3]`` from ``u [p, S, 2]`` for cell weights ``cells [p, C]``."""
+    h, w, f = env.h, env.w, env.f
+    hc, wc = h // f, w // f
+    p, S = u.shape[:2]
+    cw = cells.double().reshape(p, hc, wc)
+    rows = cw.sum(-1).cumsum(-1)
+    r, u1 = _invert(rows / rows[:, -1:].clamp(min=1e-300), u[..., 0].double())  # [p, S]
+    cols = cw.reshape(p * hc, wc)[torch.arange(p, device=u.device)[:, None] * hc + r].cumsum(-1)  # [p,S,wc]
+    c, u2 = _invert(cols / cols[..., -1:].clamp(min=1e-300), u[..., 1:].double())
+    c = r * wc + c[..., 0]
+    u2 = u2[..., 0]
+    if f == 1:
+        texel = c
+    else:  # a probe by w_k E[k, c] (u1 rescaled), then a texel by its CDF within the cell
+        C = hc * wc
+        e_kc = env.cell_sum.double().reshape(-1)[index[:, None, :] * C + c[..., None]]  # [p, S, K]
+        pk = weight.double()[:, None, :] * e_kc
+        k, u1 = _invert(pk.cumsum(-1) / pk.sum(-1, keepdim=True).clamp(min=1e-300), u1[..., None])
+        group = index.gather(1, k[..., 0]) * C + c  # [p, S] (probe, cell)
+        pos, u1 = _invert(env.bounds, (group.double() + u1[..., 0]).reshape(-1))
+        pos, u1 = pos.reshape(p, S), u1.reshape(p, S)
+        # the global search also counts whole groups as bins: the rescaled u1 of a bin is its own
+        ff = f * f
+        pos = torch.minimum(torch.maximum(pos, group * ff), group * ff + ff - 1)
+        texel = env.perm[c * ff + (pos - group * ff)]
+    row, col = texel // w, texel % w
+    # uniform in solid angle within the texel: sin(lat) uniform between the row's edges
+    top = math.pi / 2 - math.pi * row.double() / h
+    s_top, s_bot = torch.sin(top), torch.sin(top - math.pi / h)
+    lat = torch.asin((s_top + (s_bot - s_top) * u1).clamp(-1, 1))
+    lon, _ = pano.uv_to_lonlat(col.double() + u2, torch.zeros_like(lat), h, w)
+    return pano.lonlat_to_dir(lon, lat, dim=-1).to(u.dtype)
+
+
+def _env_pdf(env: _EnvSampler, cos_w: Tensor, cells: Tensor, index: Tensor, weight: Tensor,
+             d: Tensor) -> Tensor:
+    """Density ``[p, S, 1]`` of :func:`_env_directions` at directions ``d [p, S, 3]``."""
+    p, s = d.shape[:2]
+    h, w, f = env.h, env.w, env.f
+    u, v = pano.dir_to_uv(d, h, w, dim=-1)
+    col = u.long().clamp(0, w - 1)
+    row = v.long().clamp(0, h - 1)
+    cell = (row // f) * (w // f) + col // f
+    total = cells.sum(-1, keepdim=True)
+    if f == 1:  # the cell weights already hold the mixture: W_t / Ω_t
+        dens = cells.gather(1, cell) / pano.solid_angles(h, w, d.device, d.dtype).reshape(-1)[cell]
+    else:
+        k = index.shape[1]
+        idx = (index[:, None, :] * (h * w) + (row * w + col)[:, :, None]).reshape(p * s, k)
+        wgt = weight[:, None, :].expand(p, s, k).reshape(p * s, k)
+        dens = cos_w.gather(1, cell) * _mix(env.density, idx, wgt).reshape(p, s)
+    pdf = dens / total.clamp(min=1e-30)
+    return torch.where(total > 0, pdf, torch.zeros_like(pdf))[..., None]
+
+
+# ---------------------------------------------------------------------------------------------
 # Monte Carlo over one chunk of pixels
 
 
 def _mc_chunk(n: Tensor, v: Tensor, base: Tensor, rough: Tensor, metal: Tensor, u_d: Tensor,
-              u_s: Tensor, texels: Tensor, index: Tensor, weight: Tensor, h: int, w: int,
-              uniform: bool, with_spec: bool) -> tuple[Tensor, Tensor]:
-    """(diffuse, specular) ``[p, 3]`` from ``u_d [p, n_d, 2]`` cosine and ``u_s [p, n_s, 2]`` GGX samples
-    (``uniform``: ``u_d`` are uniform-hemisphere samples)."""
-    n_d, n_s = u_d.shape[1], u_s.shape[1]
+              u_s: Tensor, u_e: Tensor, texels: Tensor, env: _EnvSampler | None, index: Tensor,
+              weight: Tensor, h: int, w: int, uniform: bool, with_spec: bool) -> tuple[Tensor, Tensor]:
+    """(diffuse, specular) ``[p, 3]`` from ``u_d [p, n_d, 2]`` cosine, ``u_s [p, n_s, 2]`` GGX and
+    ``u_e [p, n_e, 2]`` environment samples (``uniform``: ``u_d`` are uniform-hemisphere samples)."""
+    n_d, n_s, n_e = u_d.shape[1], u_s.shape[1], u_e.shape[1]
     with torch.no_grad():
         nn, vv = n.detach()[:, None], v.detach()[:, None]
         alpha = alpha_from_roughness(rough.detach())[:, None]  # [p, 1, 1]
@@ -165,16 +356,22 @@ def _mc_chunk(n: Tensor, v: Tensor, base: Tensor, rough: Tensor, metal: Tensor, 
         if n_s:
             hv = local_to_world(ggx_half_vector(u_s, alpha), nn)
             dirs.append(reflect(vv, hv))
+        if n_e:
+            cos_w, cells = _env_cells(env, nn[:, 0], index, weight)
+            dirs.append(_env_directions(env, cells, index, weight, u_e))
         l = torch.cat(dirs, 1) if len(dirs) > 1 else dirs[0]
         c = cosines(nn, vv, l, dim=-1)
         nl, _, nh, vh = c
         if uniform:
             pdf = torch.full_like(nl, n_d / (2 * math.pi))
-        else:
+        else:  # balance heuristic over all strategies: each sample weighs 1 / sum_i n_i p_i(l)
             pdf = n_d * cosine_hemisphere_pdf(nl)
             if n_s:
                 pdf = pdf + n_s * ggx_pdf(nh, vh, alpha, ggx_d(nh, alpha))
-        inv_pdf = torch.where(pdf > 0, 1 / pdf.clamp(min=1e-30), torch.zeros_like(pdf))
+            if n_e:
+                pdf = pdf + n_e * _env_pdf(env, cos_w, cells, index, weight, l)
+        # below the horizon the integrand is zero: such (environment) samples are wasted, not biased
+        inv_pdf = torch.where((pdf > 0) & (nl > 0), 1 / pdf.clamp(min=1e-30), torch.zeros_like(pdf))
     if n.requires_grad or v.requires_grad:  # the integrand's cosines carry the gradient
         c = cosines(n[:, None], v[:, None], l, dim=-1)
     fd, fs = brdf(*c, base[:, None], rough[:, None], metal[:, None])
@@ -202,7 +399,8 @@ class _Pixels:
 
 
 def _classify(px: _Pixels, light: _Lighting, skips: frozenset[str], method: str) -> dict[str, Tensor]:
-    """Pixel indices per class: 'std', 'rough', 'mirror_d' (mirrors with a diffuse lobe), 'mirror'."""
+    """Pixel indices per class: 'std' (both lobes), 'spec' (no diffuse lobe: metals, black base),
+    'rough', 'mirror_d' (mirrors with a diffuse lobe), 'mirror'."""
     with torch.no_grad():
         active = ~px.skip
         rho = (px.base * (1 - px.metal)).amax(-1)
@@ -221,12 +419,21 @@ def _classify(px: _Pixels, light: _Lighting, skips: frozenset[str], method: str)
             rough_skip = active & has_d & ~mirror & (bound <= ROUGH_SPEC_RATIO * rho)
         full = active & ~mirror & ~rough_skip
         pick = lambda m: m.nonzero()[:, 0]  # noqa: E731
-        return {"std": pick(full), "rough": pick(rough_skip),
+        return {"std": pick(full & has_d), "spec": pick(full & ~has_d), "rough": pick(rough_skip),
                 "mirror_d": pick(mirror & has_d), "mirror": pick(mirror)}
 
 
 def _select(t: Tensor, idx: Tensor) -> Tensor:
     return t.index_select(0, idx)
+
+
+def _strategy_counts(spp: int, split: tuple[int, int, int]) -> tuple[int, int, int]:
+    """(cosine, GGX, environment) sample counts: ``spp`` shared in the ratio ``split``, rounding the
+    GGX and environment shares down (the cosine strategy, which covers the whole hemisphere, gets
+    the rest)."""
+    tot = sum(split)
+    n_s, n_e = spp * split[1] // tot, spp * split[2] // tot
+    return spp - n_s - n_e, n_s, n_e
 
 
 def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, sampler: str,
@@ -237,32 +444,43 @@ def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, s
     h, w = light.probes.shape[-2:]
     classes = _classify(px, light, skips, method)
     n_half = (spp + 1) // 2
-    # (n_d, n_s, with_spec) per class
-    plan = {"uniform": (spp, 0, True), "std": (n_half, spp - n_half, True),
-            "rough": (spp if ROUGH_ALL_COSINE else n_half, 0, True), "mirror_d": (n_half, 0, False)}
+    # (n_d, n_s, n_e, with_spec) per class
+    if method == "uniform":
+        plan = {"uniform": (spp, 0, 0, True)}
+    else:
+        rough = _strategy_counts(spp if ROUGH_ALL_COSINE else n_half, ROUGH_SPLIT)
+        plan = {"std": (*_strategy_counts(spp, SPLIT), True),
+                "spec": (*_strategy_counts(spp, SPEC_SPLIT), True), "rough": (*rough, True),
+                "mirror_d": (*_strategy_counts(n_half, ROUGH_SPLIT), False)}
+    uses_env = any(cnt[2] and name in classes and classes[name].numel() for name, cnt in plan.items())
+    env = _env_sampler(light.probes) if uses_env else None
     shifts = None
     if sampler != "random":  # the same per-pixel rotations in every image of a batch
-        shifts = rotation_shifts(px.per_image, 4, seed + 0x5EED, dev, dt).repeat(P // px.per_image, 1)
+        reps = P // px.per_image
+        shifts = torch.cat((rotation_shifts(px.per_image, 4, seed + 0x5EED, dev, dt),
+                            rotation_shifts(px.per_image, 2, seed + 0x5EEE, dev, dt)), 1).repeat(reps, 1)
     grad = torch.is_grad_enabled() and any(
         t.requires_grad for t in (px.n, px.v, px.base, px.rough, px.metal, light.probes))
     outs_idx, outs_d, outs_s = [], [], []
-    for name, (n_d, n_s, with_spec) in plan.items():
+    for name, (n_d, n_s, n_e, with_spec) in plan.items():
         idx = classes.get(name)
         if idx is None or idx.numel() == 0:
             continue
-        chunk = max(1, CHUNK_SAMPLES // max(n_d + n_s, 1))
+        chunk = max(1, CHUNK_SAMPLES // max(n_d + n_s + n_e, 1))
         for c0 in range(0, idx.numel(), chunk):
             ci = idx[c0:c0 + chunk]
             if sampler == "random":
                 g = seed * 1000003 + c0 * 7 + len(outs_idx)
                 u_d = pixel_samples("random", ci.numel(), n_d, 2, g, dev, dt)
                 u_s = pixel_samples("random", ci.numel(), n_s, 2, g + 1, dev, dt)
+                u_e = pixel_samples("random", ci.numel(), n_e, 2, g + 2, dev, dt)
             else:
                 sh = shifts[ci]
                 u_d = pixel_samples(sampler, ci.numel(), n_d, 2, seed, dev, dt, shifts=sh[:, :2])
-                u_s = pixel_samples(sampler, ci.numel(), n_s, 2, seed + 1, dev, dt, shifts=sh[:, 2:])
+                u_s = pixel_samples(sampler, ci.numel(), n_s, 2, seed + 1, dev, dt, shifts=sh[:, 2:4])
+                u_e = pixel_samples(sampler, ci.numel(), n_e, 2, seed + 2, dev, dt, shifts=sh[:, 4:])
             args = (_select(px.n, ci), _select(px.v, ci), _select(px.base, ci), _select(px.rough, ci),
-                    _select(px.metal, ci), u_d, u_s, texels, _select(light.index, ci),
+                    _select(px.metal, ci), u_d, u_s, u_e, texels, env, _select(light.index, ci),
                     _select(light.weight, ci), h, w, name == "uniform", with_spec)
             if grad:
                 d, s = checkpoint(_mc_chunk, *args, use_reentrant=False)
@@ -332,23 +550,31 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     sh = None if pf.sh is None else pf.sh.permute(1, 2, 0).reshape(N, -1)  # [N, 3*K]
     nv = (n * v).sum(-1)
     r = F.normalize(reflect(v, n), dim=-1)
+    ru, rv = _unit_uv(r)  # one direction -> texel mapping for every level
 
     def look(level: int, rows: Tensor) -> Tensor:
         kind, hl, wl = pf.plan[level]
-        ii, ww, d = index[rows], weight[rows], r[rows]
+        full = rows.numel() == r.shape[0]
+        ii, ww = (index, weight) if full else (index[rows], weight[rows])
         if kind == "sh":
-            return _sh_radiance(sh, ii, ww, d)
+            return _sh_radiance(sh, ii, ww, r if full else r[rows])
+        uv = (ru[:, None], rv[:, None]) if full else (ru[rows, None], rv[rows, None])
         if kind == "probe":
-            return _radiance(light.probes, hl, wl, ii, ww, d[:, None], channels_first=True)[:, 0]
+            return _radiance(light.probes, hl, wl, ii, ww, None, channels_first=True, uv=uv)[:, 0]
         t = pf.maps[level]
-        return _radiance(t.reshape(-1, 3), hl, wl, ii, ww, d[:, None], texel_major=N)[:, 0]
+        return _radiance(t.reshape(-1, 3), hl, wl, ii, ww, None, texel_major=N, uv=uv)[:, 0]
 
     diffuse = torch.zeros_like(rho)
     if lit.numel():
         diffuse = diffuse.index_add(0, lit, rho[lit] * _sh_radiance(sh, index[lit], weight[lit], n[lit]))
-    parts_i = [r_ for r_ in rows if r_.numel()]
-    parts_v = [level_w[lvl][r_, None] * look(lvl, r_) for lvl, r_ in enumerate(rows) if r_.numel()]
     pf_rad = torch.zeros_like(diffuse)
+    parts_i, parts_v = [], []
+    for lvl, r_ in enumerate(rows):
+        if r_.numel() == pf_rad.shape[0]:  # every pixel reads this level: no scatter
+            pf_rad = pf_rad + level_w[lvl][:, None] * look(lvl, r_)
+        elif r_.numel():
+            parts_i.append(r_)
+            parts_v.append(level_w[lvl][r_, None] * look(lvl, r_))
     if parts_i:
         pf_rad = pf_rad.index_add(0, torch.cat(parts_i), torch.cat(parts_v))
     spec = prefilter.specular_albedo(nv, rough[:, 0], f0_from_material(base, metal)) * pf_rad

@@ -16,10 +16,11 @@ vec3 f0_from_material(vec3 base_color, float metallic) {
     return DIELECTRIC_F0 * (1.0 - metallic) + metallic * base_color;
 }
 
+// denominator (1 - c)(1 + c) + c^2 a^2, not c^2 (a^2 - 1) + 1, which cancels near the peak in float32
 float ggx_d(float n_dot_h, float alpha) {
     float a2 = alpha * alpha;
     float c = clamp(n_dot_h, 0.0, 1.0);
-    float t = c * c * (a2 - 1.0) + 1.0;
+    float t = (1.0 - c) * (1.0 + c) + c * c * a2;
     return a2 / (PI * t * t);
 }
 

@@ -40,7 +40,8 @@ uniform vec4 imp_tile[MAX_OBJECTS];   // (s0, t0, ds, dt) of its tile in imp_atl
 uniform vec4 obj_sphere[MAX_OBJECTS]; // bounding sphere (centre, radius)
 uniform float obj_reach[MAX_OBJECTS]; // occlusion fades out toward this distance from the centre
 uniform vec3 amb_full[MAX_OBJECTS * 6];  // irradiance / pi of the object's probe around +-x, +-y, +-z
-uniform vec3 amb_res[MAX_OBJECTS * 6];   // the same without the dominant lights
+uniform vec3 amb_bounce[MAX_OBJECTS * 6];  // the same on the object's surface: its shadow on the floor
+                                         // darkens what its lower side gets (support_shadowed)
 uniform sampler2DArray obj_probes;       // layer 2k: object k's probe without its lights, 2k+1: the probe
 uniform sampler2D scene_rm;              // receivers' roughness (r) and metalness (g)
 uniform sampler2D dfg;                   // (A, B) over (n.v, R), as in ibl.glsl
@@ -90,10 +91,10 @@ vec3 ambient_full(int k, vec3 d) {
                       amb_full[o + 5], d);
 }
 
-vec3 ambient_res(int k, vec3 d) {
+vec3 ambient_bounce(int k, vec3 d) {
     int o = 6 * k;
-    return cube_blend(amb_res[o], amb_res[o + 1], amb_res[o + 2], amb_res[o + 3], amb_res[o + 4],
-                      amb_res[o + 5], d);
+    return cube_blend(amb_bounce[o], amb_bounce[o + 1], amb_bounce[o + 2], amb_bounce[o + 3], amb_bounce[o + 4],
+                      amb_bounce[o + 5], d);
 }
 
 float shadow_distance(int j, vec2 ndc) {
@@ -189,11 +190,11 @@ void main() {
                     float cone = 2.0 * PI * (1.0 - sqrt(max(1.0 - min(sin2, 1.0), 0.0)));
                     float lod = 0.5 * log2(max(cone / residual_texel, 1.0));
                     vec3 hidden = textureLod(obj_probes, vec3(scene_st(wn), float(2 * k)), lod).rgb;
-                    acc += ff * (obj_albedo[k] * ambient_full(k, -wn) - hidden);
+                    acc += ff * (obj_albedo[k] * ambient_bounce(k, -wn) - hidden);
                     ff_sum += ff;
                     keep *= 1.0 - ff;
                 }
-                float fade = smoothstep(obj_reach[k], 0.6 * obj_reach[k], dc);  // no edge at the reach
+                float fade = smoothstep(obj_reach[k], 0.7 * obj_reach[k], dc);  // no edge at the reach
                 if (ff_sum > 0.0) dE += acc * (fade * PI * (1.0 - keep) / ff_sum);  // overlaps: 1-prod(1-ff)
 #if GLOSSY_RECEIVERS
                 // the receiver's specular lobe (around rs, half-width lobe_w) meeting the proxies
@@ -208,7 +209,7 @@ void main() {
                     float f = clamp((sigma + lobe_w - delta) / (2.0 * lobe_w), 0.0, 1.0)
                               * min(1.0, sigma * sigma / (lobe_w * lobe_w));
                     if (f <= 0.0) continue;
-                    l_seen += f * obj_albedo[k] * ambient_full(k, -w / dist);
+                    l_seen += f * obj_albedo[k] * ambient_bounce(k, -w / dist);
                     f_sum += f;
                     seen *= 1.0 - f;
                 }

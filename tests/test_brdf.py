@@ -161,3 +161,17 @@ def test_rough_specular_loses_energy_smooth_does_not():
     _, s_smooth = _albedo(1.0, 0.1, 1.0)
     _, s_rough = _albedo(1.0, 1.0, 1.0)
     assert s_smooth > 0.95 and s_rough < 0.7
+
+
+def test_ggx_d_float32_keeps_precision_near_a_sharp_peak():
+    # c^2 (a^2 - 1) + 1 cancels in float32 when 1 - c^2 ~ a^2 (tiny alpha, h near n); the
+    # (1 - c)(1 + c) + c^2 a^2 form keeps ~1e-6 relative error for the same float32 cosine
+    alpha = torch.tensor([1e-3, 3e-3, 1e-2, 0.3])[:, None]
+    c64 = 1 - torch.logspace(-9, -1, 200, dtype=torch.float64)[None] * alpha.double() ** 2 * 10
+    c32 = c64.float()
+    ref = brdf.ggx_d(c32.double(), alpha.double())  # the same (rounded) cosines, in float64
+    got = brdf.ggx_d(c32, alpha).double()
+    assert float(((got - ref).abs() / ref).max()) < 1e-5
+    t_old = c32 * c32 * (alpha * alpha - 1) + 1  # the cancelling form, for contrast
+    old = (alpha * alpha / (math.pi * t_old * t_old)).double()
+    assert float(((old - ref).abs() / ref).max()) > 1e-2

@@ -22,7 +22,7 @@ from phyir.render import shade_env
 moderngl = pytest.importorskip("moderngl")
 
 from viewer import glsl  # noqa: E402
-from viewer.insertion import DRAGGING, InsertionRenderer  # noqa: E402
+from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
 from viewer.objects import PRESETS, SceneObject, primitive  # noqa: E402
 from viewer.view import EquirectView  # noqa: E402
 
@@ -214,3 +214,20 @@ def test_table_top_is_a_receiver(renderer, room):
     out = renderer.render_view([obj], *_equirect(room), DRAGGING)
     assert math.isfinite(out["composite"].sum())
     assert out["shadow"].max() > 0.2
+
+
+def test_dragging_keeps_lighting_for_small_moves(renderer, room):
+    """DRAGGING reuses an object's lighting while its probe changes by less than the tolerance, and
+    the position-dependent parts (centre, shadow cameras) still follow the object."""
+    renderer.set_scene(room)
+    obj = _sphere(room, 40.5, 50.5, 0.2)
+    st = renderer.object_state(obj, DRAGGING)
+    lighting = st.lighting
+    obj.position = obj.position + np.array([0.002, 0.0, 0.0])
+    st = renderer.object_state(obj, DRAGGING)
+    assert st.lighting is lighting
+    np.testing.assert_allclose(st.centre, obj.bounding_sphere()[0])
+    far = _sphere(room, 90.5, 52.5, 0.2)
+    obj.position, obj.support = far.position, far.support
+    assert renderer.object_state(obj, DRAGGING).lighting is not lighting
+    assert renderer.object_state(obj, FULL).lighting is not lighting

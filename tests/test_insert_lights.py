@@ -113,3 +113,20 @@ def test_probe_field_interpolates_continuously_and_places_lights():
     placed, reach = place_lights(lights, p0, DepthSurface.from_scene(room), radius=0.2)
     top = max(placed, key=lambda pl: float(luminance(pl.light.power)))
     assert float(top.position[1]) == pytest.approx(1.5, abs=0.15)
+
+
+def test_support_shadowed_darkens_the_floor_under_a_sphere():
+    """Uniform light, a sphere of radius r resting on a plane: the floor point seen at angle t from
+    straight down keeps 1 - cos^3 t of its light (form factor of the sphere there), so the cosine-
+    weighted mean straight down is 1 - 2/5; upward the cube is unchanged."""
+    from phyir.object_lighting import AXES, irradiance_at, support_shadowed
+
+    probe = torch.ones(3, 64, 128)
+    ambient = irradiance_at(probe, AXES)
+    centre = torch.tensor([0.3, 0.5, -1.0])
+    plane = (torch.tensor([0.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0]))
+    cube = support_shadowed(probe, probe, centre, 0.5, plane, ambient, [])
+    assert cube[3].mean() == pytest.approx(0.6, abs=0.02)  # -y
+    assert cube[2].mean() == pytest.approx(1.0, abs=1e-4)  # +y
+    assert 0.6 < float(cube[0].mean()) < 1.0  # sideways: part of the floor
+    assert torch.equal(support_shadowed(probe, probe, centre, 0.5, None, ambient, []), ambient)

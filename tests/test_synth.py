@@ -21,7 +21,7 @@ from phyir.synth.dataset import (
     split_of,
     tiny_settings,
 )
-from phyir.synth.lights import PORTAL, SUN
+from phyir.synth.lights import AREA, PORTAL, SUN
 from phyir.synth.rooms import CAMERA_HEIGHT, ROOM_HEIGHT, ROOM_WIDTH, generate_room, point_in_obb
 from phyir.synth.tracer import trace
 
@@ -88,6 +88,9 @@ def test_room_sizes_camera_and_lights(room):
     kinds = sc.lights.kind.tolist()
     sources = len(kinds) - kinds.count(SUN)
     assert 1 <= sources <= 6
+    # dynamic range: a room lit by the sky alone would be too flat; without the sun it has a lamp or panel
+    if SUN not in kinds:
+        assert kinds.count(AREA) >= 1
     # the camera is in free space: no primitive contains it (independent signed distances)
     assert float(_solid_sdf(sc.prims, torch.zeros(1, 3)).min()) > 0.05
 
@@ -198,6 +201,9 @@ def test_tiny_dataset_files_open_and_validate(tmp_path):
         assert float(s.depth.min()) > 0.3
         lights = json.loads(s.meta["lights"])
         assert lights["panels_and_lamps"] + lights["windows"] >= 1
+        # the brightest source is 10^2-10^4 x the median non-emissive pixel (the sun counts even unseen)
+        median = float(s.image.mean(0)[s.masks["emission"][0] < 0.5].median())
+        assert 100 <= float(s.meta["brightest_source"]) / median <= 1e4
         # exposure normalisation: median non-emissive luminance near 0.18 (x 2^+-1)
         lum = s.image.mean(0)[s.masks["emission"][0] < 0.5]
         assert 0.05 < float(lum.median()) < 0.5

@@ -14,6 +14,10 @@ import dataclasses
 import functools
 import math
 import os
+
+# Idle OpenMP threads sleep instead of spinning (set before torch loads, as phyir.cli does): a
+# spinning inference thread would take the UI thread's core on a small CPU.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import sys
 import time
 from collections import deque
@@ -390,15 +394,22 @@ class App:
         self.hdr.tonemap = name
         self._dirty_pins()
 
+    def _scalar(self, layer: str | None) -> ScalarDisplay:
+        name = layer or self.layer
+        if name not in self.scalar:
+            raise PhyIRError(f"layer {name!r} is not shown through a colour map "
+                             f"(those are: {', '.join(self.scalar)})")
+        return self.scalar[name]
+
     def set_colormap(self, name: str, layer: str | None = None) -> None:
         if name not in COLORMAPS:
             raise PhyIRError(f"unknown colour map {name!r} (choose from {', '.join(COLORMAPS)})")
-        self.scalar[layer or self.layer].colormap = name
+        self._scalar(layer).colormap = name
 
     def set_range(self, lo: float | None, hi: float | None = None, layer: str | None = None) -> None:
         """Colour-map range of a scalar layer; ``lo=None`` returns to the automatic range."""
         name = layer or self.layer
-        sd = self.scalar[name]
+        sd = self._scalar(name)
         if lo is None:
             sd.auto = SPECS[name].range is None
             arrays = self.shown_arrays

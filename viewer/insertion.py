@@ -32,6 +32,7 @@ from phyir.brdf import f0_from_material
 from phyir.errors import PhyIRError
 from phyir.object_lighting import (
     HALO,
+    N_HALO,
     ObjectLighting,
     ProbeField,
     irradiance_map,
@@ -63,11 +64,13 @@ class Quality:
     shadow_taps: int = 16  # PCSS blocker-search and filter taps
     peak_subsamples: bool = True  # 2 x 2 samples per peak texel (else one at its centre)
     glossy_receivers: bool = True  # the object replaces what glossy receivers reflect
+    halo: float = HALO  # receivers' ambient occlusion reaches this many bounding radii
+    relight_tolerance: float = 0.0  # keep the lighting of a moved object while its probe changed less
 
 
 FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
-                   peak_subsamples=False, glossy_receivers=False)
+                   peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -139,9 +142,12 @@ class _ObjectGPU:
     spec: moderngl.Texture
     irr: moderngl.Texture
     amb_full: np.ndarray  # [6, 3]
-    amb_res: np.ndarray
+    amb_bounce: np.ndarray  # [6, 3] what the object's surface receives (its shadow on the support darkens it)
     centre: np.ndarray
     radius: float
+    raw_probe: torch.Tensor  # the interpolated probe the lighting was computed from
+    reach: np.ndarray  # [P, 3] lighting.reach moved with the object
+    halo: float = HALO
     lights: list = field(default_factory=list)  # (PlacedLight, view_proj, tan, near, size_m)
 
     def release(self) -> None:
@@ -266,6 +272,20 @@ class InsertionRenderer:
             self._meshes[key] = (m, vbo, ibo, {})
         return self._meshes[key]
 
+    def _forget(self, objects: list[SceneObject]) -> None:
+        """Release the lighting of objects that are gone and the buffers of meshes no object uses
+        (in the viewer objects come and go: each added object has a new mesh)."""
+        alive = {id(o) for o in objects}
+        for k in [k for k in self._objects if k not in alive]:
+            self._objects.pop(k).release()
+        used = {id(o.mesh) for o in objects}
+        for k in [k for k in self._meshes if k not in used]:
+            _mesh, vbo, ibo, vaos = self._meshes.pop(k)
+            for v in vaos.values():
+                v.release()
+            vbo.release()
+            ibo.release()
+
     def _vao(self, obj: SceneObject, prog: moderngl.Program) -> moderngl.VertexArray:
         m, vbo, ibo, vaos = self._mesh(obj)
         if id(prog) not in vaos:
@@ -278,23 +298,49 @@ class InsertionRenderer:
 
     def object_state(self, obj: SceneObject, quality: Quality = FULL) -> _ObjectGPU:
         """The object's lighting and textures, recomputed only when it moved, changed size or the
-        quality changed (lights are placed with fewer marching steps while dragging)."""
+        quality changed (lights are placed with fewer marching steps while dragging).  With
+        ``quality.relight_tolerance`` a moved object keeps its lighting (textures, lights) while the
+        probe interpolated at its new centre differs from the one it was lit with by less than that
+        (relative L1); only its position-dependent parts (shadow cameras, reach) follow it."""
+        support = None if obj.support is None else np.concatenate(obj.support).round(6).tobytes()
         key = (id(obj.mesh), obj.scale, obj.position.round(6).tobytes(), obj.rotation.round(6).tobytes(),
-               quality.march_steps)
+               support, quality.march_steps)
         st = self._objects.get(id(obj))
         if st is not None and st.key == key:
             st.obj = obj
             return st
         centre, radius = obj.bounding_sphere()
+        raw = self.field.probe_at(torch.as_tensor(centre, dtype=torch.float32))
+        same_shape = st is not None and st.key[:2] == key[:2] and st.key[-1] == key[-1]
+        if same_shape and quality.relight_tolerance > 0:
+            change = float((raw - st.raw_probe).abs().sum() / st.raw_probe.abs().sum().clamp(min=1e-12))
+            if change < quality.relight_tolerance:
+                st.obj, st.key, st.halo = obj, key, quality.halo
+                st.reach = st.lighting.reach.numpy() + (centre - st.lighting.centre.numpy())
+                st.centre, st.radius = centre, radius
+                st.lights = self._light_cameras(st.lighting, centre, radius)
+                return st
+        point, normal = obj.support if obj.support is not None else (centre - [0, radius, 0], (0, 1, 0))
         lighting = object_lighting(self.field, torch.as_tensor(centre, dtype=torch.float32), self.surface,
-                                   radius=radius, steps=quality.march_steps)
+                                   radius=radius, steps=quality.march_steps,
+                                   support=(torch.as_tensor(point), torch.as_tensor(normal)), probe=raw)
         if st is not None:
             st.release()
         env = self.probe_texture(lighting.mips)
         spec = self.probe_texture(lighting.spec_mips)
         irr = self._equirect(lighting.irradiance.permute(1, 2, 0).numpy())
         st = _ObjectGPU(obj, key, lighting, env, spec, irr, lighting.ambient.numpy(),
-                        lighting.ambient_residual.numpy(), centre, radius)
+                        lighting.ambient_bounce.numpy(), centre, radius, raw, lighting.reach.numpy(),
+                        quality.halo)
+        st.lights = self._light_cameras(lighting, centre, radius)
+        self._objects[id(obj)] = st
+        return st
+
+    @staticmethod
+    def _light_cameras(lighting: ObjectLighting, centre: np.ndarray, radius: float) -> list:
+        """Per placed light: (light, view_proj, tan of the half field of view, near, source radius in
+        metres) of the shadow camera at the light aimed at the object's bounding sphere."""
+        out = []
         for pl in lighting.lights:
             dist = float(np.linalg.norm(pl.position.numpy() - centre))
             if dist <= radius * 1.05:  # the light is inside the object's bounds: no useful shadow
@@ -304,9 +350,8 @@ class InsertionRenderer:
             near = max(dist - radius, 0.01) * 0.8
             vp = perspective(tan, near, dist + 1.2 * radius) @ look_at(pl.position.numpy(), centre)
             size = math.tan(min(pl.light.spread, 1.2)) * pl.distance
-            st.lights.append((pl, vp, tan, near, size))
-        self._objects[id(obj)] = st
-        return st
+            out.append((pl, vp, tan, near, size))
+        return out
 
     # -- passes -------------------------------------------------------------------------------
     def _atlas(self, name: str, size: tuple[int, int], components: int, depth: bool) -> moderngl.Framebuffer:
@@ -334,6 +379,7 @@ class InsertionRenderer:
         per pixel; returns the drawn objects (far to near) with their impostor tiles."""
         if fusion not in FUSIONS:
             raise PhyIRError(f"fusion must be one of {', '.join(FUSIONS)}, got {fusion!r}")
+        self._forget(objects)
         ctx = self.ctx
         work = []
         for obj in objects:
@@ -465,9 +511,9 @@ class InsertionRenderer:
         _write(prog, "imp_tile", [(t.rect[0] / aw, t.rect[1] / ah, t.rect[2] / aw, t.rect[3] / ah)
                                   for _, t in drawn])
         _write(prog, "obj_sphere", [(*st.centre, st.radius) for st, _ in drawn])
-        _write(prog, "obj_reach", [HALO * st.radius for st, _ in drawn])
+        _write(prog, "obj_reach", [st.halo * st.radius for st, _ in drawn])
         _write(prog, "amb_full", np.stack([st.amb_full for st, _ in drawn]))
-        _write(prog, "amb_res", np.stack([st.amb_res for st, _ in drawn]))
+        _write(prog, "amb_bounce", np.stack([st.amb_bounce for st, _ in drawn]))
         _write(prog, "obj_albedo", [reflectance(st.obj.material) for st, _ in drawn])
         res = self._probe_array(drawn)
         res.use(13)
@@ -540,7 +586,7 @@ class InsertionRenderer:
         """(x, y, w, h) view pixels (y from the top) bounding what the objects change, or None."""
         w, h = size
         H, W = self.scene.size
-        pts = np.concatenate([st.lighting.reach.numpy() for st, _ in drawn])
+        pts = np.concatenate([_reach_points(st) for st, _ in drawn])
         u, v, _ = pano.points_to_uv(torch.from_numpy(pts), H, W, dim=-1)
         u, v = u.numpy(), v.numpy()
         if isinstance(view, EquirectView):
@@ -680,6 +726,7 @@ class InsertionPass:
     def __call__(self, renderer, frame) -> None:
         ins = self.insertion
         self.last_rect = None
+        ins._forget(self.objects)  # deleted objects' lighting, unused meshes
         if not self.enabled or not frame.extras.get("insert", True) or ins.scene is None:
             return
         if not any(o.visible for o in self.objects):
@@ -719,6 +766,13 @@ class InsertionPass:
         ins._fullscreen(prog).render(moderngl.TRIANGLES, vertices=3)
         ctx.viewport = (vx, vy, vw, vh)
         self.last_rect = rect
+
+
+def _reach_points(st: _ObjectGPU) -> np.ndarray:
+    """The object's reach points with its halo at ``st.halo`` radii (object_lighting's are at HALO)."""
+    c = st.centre[None]
+    halo = c + (st.reach[:N_HALO] - c) * (st.halo / HALO)
+    return np.concatenate([halo, st.reach[N_HALO:]])
 
 
 def _set_lighting(prog: moderngl.Program, spec_levels: list[torch.Tensor], dirs: torch.Tensor,

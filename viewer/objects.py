@@ -7,7 +7,8 @@ spanning [-1, 1]^3, ``cylinder`` of radius 1 from y = -1 to 1; a scale multiplie
 
 Loading outcomes (documented in docs/insertion.md, tested in tests/test_objects.py):
 * missing or unreadable file, no triangles, NaN/Inf vertices, more than :data:`MAX_FACES`
-  triangles, zero or absurd size: :class:`~phyir.errors.InputError` with a one-line message;
+  triangles, zero or absurd size: :class:`~phyir.errors.InputError` with a one-line message (PLY,
+  OFF and binary STL files declaring too many faces are refused from their header, before parsing);
 * non-manifold or open meshes load as they are (rendering does not need a closed surface); their
   ambient-occlusion proxies are fitted to surface samples;
 * missing or broken (zero, NaN) vertex normals are computed from the faces.
@@ -104,9 +105,14 @@ class Mesh:
 def _finish(vertices: np.ndarray, normals: np.ndarray | None, faces: np.ndarray, name: str,
             where: str) -> Mesh:
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0 or len(v) == 0:
         raise InputError(where, "the mesh has no triangles")
+    if v.ndim != 2 or v.shape[1] != 3:  # e.g. an OBJ line "v 1 0": trimesh then gives [V, 2]
+        raise InputError(where, f"vertices must have 3 coordinates (x y z), got array {list(v.shape)}")
+    if f.size % 3:
+        raise InputError(where, f"faces must be triangles, got array {list(f.shape)}")
+    f = f.reshape(-1, 3)
     if len(f) > MAX_FACES:
         raise InputError(where, f"{len(f):,} triangles is more than the limit of {MAX_FACES:,}; "
                                 "decimate the mesh first")
@@ -140,6 +146,34 @@ def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.where(length > 1e-20, n / np.maximum(length, 1e-30), np.array([0.0, 1.0, 0.0]))
 
 
+def declared_faces(path: str) -> int | None:
+    """The face count a PLY, OFF or binary STL file declares in its header (read without parsing the
+    body), or None for other formats or an unreadable header (the parser then decides)."""
+    import struct
+
+    with open(path, "rb") as f:
+        head = f.read(64 * 1024)
+    size = os.path.getsize(path)
+    if head.startswith(b"ply"):
+        for line in head.split(b"end_header")[0].splitlines():
+            words = line.split()
+            if len(words) == 3 and words[:2] == [b"element", b"face"] and words[2].isdigit():
+                return int(words[2])
+        return None
+    lines = [ln.split(b"#")[0].strip() for ln in head.splitlines()[:64]]
+    lines = [ln for ln in lines if ln]
+    if lines and lines[0].endswith(b"OFF") and len(lines) > 1:  # OFF, COFF, NOFF: "nv nf ne" next
+        counts = lines[1].split()
+        if len(counts) >= 2 and counts[1].isdigit():
+            return int(counts[1])
+        return None
+    if len(head) >= 84:  # binary STL: 80-byte header, uint32 count, 50 bytes per triangle
+        (n,) = struct.unpack("<I", head[80:84])
+        if size == 84 + 50 * n:
+            return n
+    return None
+
+
 def load_mesh(path: str | os.PathLike) -> Mesh:
     """Read a mesh file (every part of a scene file merged into one mesh); see the module doc."""
     import trimesh
@@ -147,6 +181,10 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     p = os.fspath(path)
     if not os.path.isfile(p):
         raise InputError(p, "no such file")
+    declared = declared_faces(p)
+    if declared is not None and declared > MAX_FACES:  # refused before parsing (nothing allocated)
+        raise InputError(p, f"{declared:,} triangles (declared in the file's header) is more than the "
+                            f"limit of {MAX_FACES:,}; decimate the mesh first")
     try:
         loaded = trimesh.load(p, force="mesh", process=False)
     except Exception as e:  # trimesh raises many types for bad files

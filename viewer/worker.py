@@ -13,6 +13,10 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import os
+
+# Idle OpenMP threads sleep instead of spinning (set before torch loads, as phyir.cli does): a
+# spinning inference thread would take the UI thread's core on a small CPU.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import queue
 import sys
 import threading

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             dst.parent.mkdir(parents=True, exist_ok=True)
             save_scene(scene, dst, half=args.half)
         except PhyIRError as e:  # report and go on with the other inputs
-            bar.write(f"phyir predict: error: {e}")
+            bar.write(f"phyir predict: error: {e}", file=sys.stderr)
             status = 2
             bar.update(1)
             continue

@@ -77,6 +77,10 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
     kinds = sc.lights.kind.tolist()
     lights = {"panels_and_lamps": kinds.count(AREA), "windows": kinds.count(PORTAL), "sun": kinds.count(SUN)}
     metal = float((res.metallic[0][nonem] > 0.5).float().mean()) if bool(nonem.any()) else 0.0
+    L = sc.lights  # brightest source radiance (channel mean), whether or not a pixel shows it
+    bright = float(L.radiance.mean(1).max())
+    if PORTAL in kinds:
+        bright = max(bright, float(torch.stack((L.zenith, L.horizon, L.ground)).mean(1).max()))
     d = res.depth[0]
     meta = {
         "source": "phyir synth",
@@ -85,6 +89,7 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
         "room": json.dumps(room.summary()),
         "lights": json.dumps(lights),
         "metal_fraction": f"{metal:.4f}",
+        "brightest_source": f"{bright * k:.6g}",
         "depth_range": f"{float(d.min()):.4f} {float(d.max()):.4f}",
         "camera_height": f"{room.camera[1]:.4f}",
         "probe_offset": "0.05",

@@ -25,7 +25,9 @@ from phyir.sampling import local_to_world
 from phyir.synth import geometry as G
 
 AREA, PORTAL, SUN = 0, 1, 2
-SUN_RADIUS = math.radians(2.0)  # angular radius: sun/sunlit-floor radiance ratio ~ 1e3-1e4
+# angular radius: a hazy sun ~ one 16x32 probe texel wide (11.25 deg), so probes hold it as well
+# as the image (soft shadow edges, no sub-texel disc); sun/sunlit-floor radiance ~ 1e2-1e3
+SUN_RADIUS = math.radians(6.0)
 UNIFORM_SHARE = 0.1  # part of the light-selection probability spread uniformly
 
 

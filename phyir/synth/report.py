@@ -70,7 +70,7 @@ def statistics(paths: list[Path]) -> dict:
     """Dataset statistics from the scene files' metadata and layers."""
     from phyir.io import load_scene
 
-    light_counts, suns, metal, dmin, dmax, dmed, secs, widths, heights, ratio = ([] for _ in range(10))
+    light_counts, suns, metal, dmin, dmax, dmed, secs, widths, heights, ratio, src = ([] for _ in range(11))
     kinds = {"rect": 0, "L": 0}
     for p in paths:
         s = load_scene(p)
@@ -90,8 +90,11 @@ def statistics(paths: list[Path]) -> dict:
         # dynamic range: brightest emitter pixel over the median lit non-emissive pixel
         em = s.masks["emission"][0] > 0.5
         lum = s.image.mean(0)
+        med = float(lum[~em].median().clamp(min=1e-8))
         if bool(em.any()):
-            ratio.append(float(lum[em].max() / lum[~em].median().clamp(min=1e-8)))
+            ratio.append(float(lum[em].max()) / med)
+        if "brightest_source" in s.meta:  # includes the sun and emitters no pixel shows
+            src.append(float(s.meta["brightest_source"]) / med)
     n = len(paths)
     hist = {str(k): light_counts.count(k) for k in sorted(set(light_counts))}
     q = lambda v: [float(np.percentile(v, x)) for x in (0, 50, 100)] if v else []  # noqa: E731
@@ -101,6 +104,9 @@ def statistics(paths: list[Path]) -> dict:
             "depth_min_median_max": [min(dmin), float(np.median(dmed)), max(dmax)],
             "room_side_min_median_max": q(widths), "room_height_min_median_max": q(heights),
             "room_kinds": kinds, "emitter_to_median_ratio_min_median_max": q(ratio),
+            "emitter_to_median_ratio_all": sorted(round(r, 1) for r in ratio),
+            "source_to_median_ratio_min_median_max": q(src),
+            "source_to_median_ratio_all": sorted(round(r, 1) for r in src),
             "render_seconds_mean": float(np.mean(secs))}
 
 

@@ -512,7 +512,10 @@ class _Builder:
     def lights(self):
         rng, pal, room = self.rng, self.pal, self.room
         rest = self.plan["rest"] + (self.plan["windows"] - self.n_windows)
-        if self.n_windows == 0:
+        # dynamic range: a sky seen through a window is only ~20-80x the walls it lights, so a room
+        # without the sun (whose disc is >= 10^2x the walls) always gets a compact artificial source
+        sunny = self.n_windows > 0 and rng.random() < 0.65
+        if not sunny:
             rest = max(rest, 1)
         n_lamps = int(rng.integers(0, min(2, rest) + 1))
         n_panels = rest - n_lamps
@@ -522,7 +525,7 @@ class _Builder:
         for _ in range(n_panels * 20):
             if made_panels == n_panels:
                 break
-            w, d = float(rng.uniform(0.3, 1.2)), float(rng.uniform(0.3, 0.6))
+            w, d = float(rng.uniform(0.25, 0.9)), float(rng.uniform(0.25, 0.5))
             xs = [p[0] for p in room.polygon]
             zs = [p[1] for p in room.polygon]
             x, z = float(rng.uniform(min(xs), max(xs))), float(rng.uniform(min(zs), max(zs)))
@@ -533,7 +536,7 @@ class _Builder:
             box = ((x, room.height - 0.05, z), (w / 2 + 0.1, 0.05, d / 2 + 0.1), 0.0)
             if any(obb_overlap(box, (it.centre, it.half, it.yaw)) for it in room.items):
                 continue
-            Le = float(rng.uniform(8, 30)) * tint()
+            Le = float(rng.uniform(15, 45)) * tint()
             room.prims.append(PrimSpec(G.QUAD, (x, room.height - 0.005, z),
                                        ((1, 0, 0), (0, 0, 1), w / 2, d / 2), body, emit=tuple(Le),
                                        one_sided=True))
@@ -544,13 +547,13 @@ class _Builder:
                 self.n_lamps += 1
             elif self._floor_lamp(body, tint()):
                 self.n_lamps += 1
-        if made_panels + self.n_lamps + self.n_windows == 0:  # nothing fitted: a small panel in the middle
+        if made_panels + self.n_lamps == 0 and not sunny:  # nothing fitted: a small panel
             xs = [p[0] for p in room.polygon]
             zs = [p[1] for p in room.polygon]
             x, z = (min(xs) + max(xs)) / 4, (min(zs) + max(zs)) / 4
             room.prims.append(PrimSpec(G.QUAD, (x, room.height - 0.005, z), ((1, 0, 0), (0, 0, 1), 0.2, 0.2),
                                        body, emit=tuple(20 * tint()), one_sided=True))
-        room.sky = Sky.random(rng, sun=self.n_windows > 0 and rng.random() < 0.65)
+        room.sky = Sky.random(rng, sun=sunny)
 
     def _floor_lamp(self, body, tint) -> bool:
         rng, pal = self.rng, self.pal
@@ -564,7 +567,7 @@ class _Builder:
             top, hw = h + 1.9 * r, r
         else:
             r, hh = float(rng.uniform(0.14, 0.22)), float(rng.uniform(0.1, 0.15))
-            le = tuple(float(rng.uniform(6, 25)) * tint)
+            le = tuple(float(rng.uniform(10, 35)) * tint)
             parts.append(("cyl", (0, h + hh * 0.6, 0), (r, hh), body, le))
             top, hw = h + 1.6 * hh, r
         hw = max(hw, 0.14)

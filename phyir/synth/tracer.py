@@ -25,8 +25,10 @@ a path vertex); emitters seen directly are rasterised exactly instead: per probe
 texels within the source's bounding cone are supersampled against the source's own shape (a
 cheap one-primitive test, up to ``cov_budget`` sub-rays per probe and source) and multiplied by a
 visibility fraction from ``vis_rays`` full shadow rays per texel; the sun adds ``sun_rays``
-visibility rays per probe into the texels of its disc.  This keeps emitter edges, small lamps and
-the sun noise-free in the probes at one ray per texel.
+stratified visibility rays per probe inside its disc.  Each covered sub-ray is splatted bilinearly
+(:func:`splat`), so the rendering layer's bilinear reconstruction gets every source's energy at its
+true direction.  This keeps emitter edges, small lamps and the sun noise-free in the probes at one
+ray per texel.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from torch import Tensor
 
 from phyir import brdf, prefilter
 from phyir import sampling as S
-from phyir.pano import dir_to_uv, directions, solid_angles, uv_to_dir
+from phyir.pano import bilinear_taps, dir_to_uv, directions, solid_angles, uv_to_dir
 from phyir.synth import geometry as G
 from phyir.synth.lights import PORTAL
 from phyir.synth.materials import evaluate
@@ -512,6 +514,22 @@ def _probe_main(sc, lm, q, st, gen) -> Tensor:
     return L.reshape(P, T, 3)
 
 
+def splat(out: Tensor, row0: Tensor, d: Tensor, energy: Tensor, h: int, w: int, omega: Tensor) -> None:
+    """Add ``energy [N,3]`` (radiance x solid angle) arriving from directions ``d [N,3]`` to the
+    texels of flat probes ``out [P*h*w, 3]`` (probe ``k`` starts at row ``row0[k]``).
+
+    The energy is split over the four texels of a bilinear look-up of ``d`` (the adjoint of the
+    rendering layer's bilinear reconstruction), each share divided by that texel's solid angle: the
+    reconstructed radiance then integrates to ``energy`` and its centroid lies at ``d`` — a box
+    filter would move every source smaller than a texel to the texel centre (up to 5.6 degrees at
+    16x32, a cosine error of up to ~35 % for a low sun on the floor).
+    """
+    u, v = dir_to_uv(d, h, w, dim=1)
+    idx, wgt = bilinear_taps(u, v, h, w)
+    val = energy[:, None, :] * (wgt / omega[idx])[..., None]
+    out.index_add_(0, (row0[:, None] + idx).reshape(-1), val.reshape(-1, 3))
+
+
 def _probe_emitters(sc, q, st, gen) -> Tensor:
     """Directly visible sources rasterised into the probe texels (see the module doc)."""
     lights = sc.lights
@@ -520,6 +538,7 @@ def _probe_emitters(sc, q, st, gen) -> Tensor:
     dev = q.device
     out = torch.zeros(P * T, 3, device=dev)
     texel_d = directions(h, w, device=dev).permute(1, 2, 0).reshape(T, 3)
+    omega = solid_angles(h, w, device=dev).reshape(T)
     delta = math.hypot(math.pi / h / 2, math.pi / w)  # texel angular radius (upper bound)
     for li in range(lights.n):
         pid = int(lights.pid[li])
@@ -540,7 +559,8 @@ def _probe_emitters(sc, q, st, gen) -> Tensor:
             ns = s * s
             grid = torch.stack(torch.meshgrid(torch.arange(s, device=dev), torch.arange(s, device=dev),
                                               indexing="ij"), -1).reshape(ns, 2).float()
-            jit = (grid[None] + torch.rand(len(pp), ns, 2, generator=gen, device=dev)) / s
+            # sub-ray cell centres: coverage and its bilinear split are deterministic (no probe noise)
+            jit = ((grid + 0.5) / s)[None].expand(len(pp), ns, 2)
             i = (tt // w).float()[:, None]
             j = (tt % w).float()[:, None]
             dirs = texel_dirs(i, j, jit, h, w).reshape(-1, 3)
@@ -551,7 +571,6 @@ def _probe_emitters(sc, q, st, gen) -> Tensor:
                 continue
             pair = hitm // ns
             le, _ = lights.emitted(torch.full((len(hitm),), li, device=dev), dirs[hitm])
-            cov = torch.zeros(len(pp), 3, device=dev).index_add_(0, pair, le / ns)
             # visibility from up to vis_rays random covered sub-rays per texel
             key = pair.double() + torch.rand(len(pair), generator=gen, device=dev, dtype=torch.float64) * 0.5
             order = torch.argsort(key)
@@ -565,7 +584,9 @@ def _probe_emitters(sc, q, st, gen) -> Tensor:
             ones = torch.ones(len(sel), device=dev)
             tot_n = torch.zeros(len(pp), device=dev).index_add_(0, pair[sel], ones)
             frac = vis_n / tot_n.clamp(min=1)
-            out.index_add_(0, pp * T + tt, cov * frac[:, None])
+            # each covered sub-ray carries radiance x its share of the texel's solid angle
+            energy = le * (omega[tt[pair]] / ns * frac[pair])[:, None]
+            splat(out, pp[pair] * T, dirs[hitm], energy, h, w, omega)
     return out.reshape(P, T, 3)
 
 
@@ -578,7 +599,9 @@ def _probe_sun(sc, q, st, gen) -> Tensor:
     if not lights.has_sun:
         return out.reshape(P, T, 3)
     K = st.sun_rays
-    u = torch.rand(P * K, 2, generator=gen, device=dev)
+    # the same K Sobol points of the disc for every probe and seed: the split of the sun's energy
+    # among the texels is then noise-free; only the visibility of partly shadowed probes varies
+    u = S.point_set("sobol", K, 2, 0, dev).repeat(P, 1)
     cos_t = 1 - u[:, 0] * (1 - lights.sun_cos)
     sin_t = torch.sqrt((1 - cos_t * cos_t).clamp(min=0))
     phi = 2 * math.pi * u[:, 1]
@@ -587,13 +610,9 @@ def _probe_sun(sc, q, st, gen) -> Tensor:
     x = q.repeat_interleave(K, 0)
     vis = visible(sc, x, d, torch.full((len(x),), float("inf"), device=dev),
                   torch.ones(len(x), dtype=torch.bool, device=dev))
-    uu, vv = dir_to_uv(d, h, w, dim=1)
-    tex = vv.long().clamp(0, h - 1) * w + uu.long().clamp(0, w - 1)
-    omega = solid_angles(h, w, device=dev).reshape(T)
-    val = lights.radiance[lights.sun_index] * (lights.sun_omega / K)
-    contrib = val[None] * (vis.float() / omega[tex])[:, None]
-    probe = torch.arange(P, device=dev).repeat_interleave(K)
-    out.index_add_(0, probe * T + tex, contrib)
+    energy = lights.radiance[lights.sun_index] * (lights.sun_omega / K) * vis.float()[:, None]
+    splat(out, torch.arange(P, device=dev).repeat_interleave(K) * T, d, energy, h, w,
+          solid_angles(h, w, device=dev).reshape(T))
     return out.reshape(P, T, 3)
 
 
