@@ -17,7 +17,7 @@ if [ ! -f "$data/scene_000289.exr" ]; then
   kill $synth
 fi
 c=(--data "$data" --size native --probe-grid native --schedule cosine --workers 0 --no-progress)
-stage() {  # stage out limit-train max-steps export-epochs [args]: train, then export at the epoch reached
+stage() {  # stage out train-scenes max-steps export-epochs [args] (the train scenes present when it ran): train, then export at the epoch reached
   local st=$1 out=$2 lim=$3 steps=$4 ep=$5; shift 5
   phyir train "${c[@]}" --out "$out" --stage "$st" --limit-train "$lim" --max-steps "$steps" "$@"
   [ -f "$out/$st/model.safetensors" ] || phyir train "${c[@]}" --out "$out" --stage "$st" \
@@ -25,7 +25,7 @@ stage() {  # stage out limit-train max-steps export-epochs [args]: train, then e
 }
 stage gm "$run-gm1" 64 472 59 --epochs 120 --lr 3e-4                 # GMNet on the first 64 scenes
 stage gm "$run" 102 140 11 --epochs 12 --lr 1e-4 --init "$run-gm1/gm/model.safetensors"
-stage light "$run" 203 502 14 --epochs 30 --lr 3e-4                   # LNet, GMNet frozen
+stage light "$run" 142 502 14 --epochs 30 --lr 3e-4                   # LNet, GMNet frozen
 stage joint "$run" 203 73 1 --epochs 3                                  # both, lr 1e-5
-stage gs "$run" 203 GS_STEPS GS_EPOCHS --epochs 12                      # GSNet
+stage gs "$run" 224 168 12 --epochs 12                                  # GSNet (ran to the end)
 python -m phyir.weights ship "$run/gs/model.safetensors" phyir/weights/phyir-lite.safetensors

@@ -66,7 +66,7 @@ def test_outcomes_refusal_and_finding(tmp_path, monkeypatch):
     r = fuzz.run_input(target, str(bad))
     assert r.kind == "finding" and "KeyError: 'oops'" in r.text
     assert r.signature.startswith("KeyError at ")
-    assert r.signature.endswith("test_fuzz_regressions.py:62 in broken")
+    assert r.signature.endswith(f"test_fuzz_regressions.py:{broken.__code__.co_firstlineno + 1} in broken")
 
 
 def test_mutations_are_seeded_and_bounded():

@@ -22,8 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated subset of depth,normal,albedo,roughness,metallic,probes "
                              "(default: all); layers the input already has are kept, not recomputed")
     parser.add_argument("--lighting", choices=("projection", "lnet"), default=None,
-                        help="probes re-read from the panorama where the camera saw, LNet elsewhere "
-                             "(projection, default), or LNet only")
+                        help="LNet's probes (lnet, default: better with the shipped weights), or probes "
+                             "re-read from the panorama where the camera saw, LNet elsewhere (projection)")
     parser.add_argument("--net-size", metavar="HxW", help="network resolution (default: the weights')")
     parser.add_argument("--ldr", action="store_true", help="treat inputs as LDR (no exposure normalisation)")
     parser.add_argument("--half", action="store_true", help="write float16 EXR channels")
