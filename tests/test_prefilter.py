@@ -137,3 +137,17 @@ def test_cache_reuses_and_invalidates():
     c.sh.sum().backward()
     assert g.grad is not None and torch.isfinite(g.grad).all()
     assert prefilter.prefiltered(g) is not c  # never cached while it needs gradients
+
+
+def test_cache_takes_inference_tensors():
+    """phyir.predict's probes are inference tensors (no version counter): the viewer re-renders with
+    them (this crashed with the shipped weights)."""
+    with torch.inference_mode():
+        env = torch.rand(4, 3, 16, 32)
+    a = prefilter.prefiltered(env)
+    assert prefilter.prefiltered(env) is a
+    with torch.inference_mode():
+        env.mul_(2)
+    b = prefilter.prefiltered(env)
+    assert b is not a
+    torch.testing.assert_close(b.sh, 2 * a.sh)
