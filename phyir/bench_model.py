@@ -170,13 +170,10 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
         cfg["repeats"] = repeats
     if os.environ.get("PHYIR_BENCH_MODELS"):
         cfg["sizes"] = tuple(m.strip() for m in os.environ["PHYIR_BENCH_MODELS"].split(",") if m.strip())
-    old = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
+    from phyir.bench_measure import torch_threads
+
+    with torch_threads(threads):
         return _run(Path(out_dir), cfg, quick, device, log)
-    finally:
-        torch.set_num_threads(old)
 
 
 def _run(out: Path, cfg: dict, quick: bool, device: str, log: Callable[[str], None]) -> dict:

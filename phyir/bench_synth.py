@@ -208,13 +208,10 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     stages taking seconds each.
     """
     cfg = dict(QUICK if quick else FULL)
-    old = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
+    from phyir.bench_measure import torch_threads
+
+    with torch_threads(threads):
         return _run(Path(out_dir), cfg, device, log)
-    finally:
-        torch.set_num_threads(old)
 
 
 def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:

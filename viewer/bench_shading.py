@@ -107,13 +107,10 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     cfg = dict(QUICK if quick else FULL)
     if repeats is not None:
         cfg["repeats"] = repeats
-    old = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
+    from phyir.bench_measure import torch_threads
+
+    with torch_threads(threads):
         return _run(Path(out_dir), cfg, device, log)
-    finally:
-        torch.set_num_threads(old)
 
 
 def _context():
