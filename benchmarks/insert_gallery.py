@@ -1,8 +1,12 @@
 """Gallery of insertions: Table 2's diffuse, matte-silver and mirror-silver spheres and one mesh (a
-20k-triangle vase, glossy red) standing on the floor of each scene, plus ``phyir insert`` run once
-per scene.  Writes docs/img/insert_gallery.png and benchmarks/results/insert_gallery.json.
+20k-triangle vase, glossy red) standing on free floor found in each scene (``floor_spots``, robust
+to predicted geometry), plus ``phyir insert`` run twice per scene (a sphere, equirect; the vase,
+perspective) into ``--cli-out`` (default: a temporary folder).  Before/after panels: a crop of the
+panorama (``--view equirect``) or a camera looking at the objects (``--view perspective``).
 
-    .venv/bin/python benchmarks/insert_gallery.py SCENE.exr [SCENE.exr ...]
+    .venv/bin/python benchmarks/insert_gallery.py /tmp/synth/scene_00000*.exr  # docs/img/insert_gallery.png
+    .venv/bin/python benchmarks/insert_gallery.py /work/pred/*.exr --view perspective \
+        --image docs/img/insert_gallery_real.png --json benchmarks/results/insert_gallery_real.json
 
 Scenes need depth and probes (scene files); plain panoramas go through phyir.predict first, which
 needs model weights.
@@ -12,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -34,38 +39,163 @@ def vase(path: str) -> None:
     mesh.export(path)
 
 
-def floor_spots(scene, n: int, distance=(1.2, 2.4), spacing: float = 0.6):
-    """``n`` free floor pixels (u, v) about ``spacing`` metres apart, in front of the camera."""
+PREFERRED_DISTANCE = 1.5  # metres from the camera, horizontally
+GROUP_SPREAD = math.radians(50)  # the group within this azimuth of its first spot (one view)
+FIRST_TRIES = 12  # first spots (at distinct azimuths) tried before taking the largest group
+ROOM = 0.8  # metres of free floor around a spot wanted before it counts as crowded
+# where to look for floor spots, best first: (steepest floor tilt in degrees, horizontal distance range m)
+SEARCH = ((25.0, (1.2, 2.4)), (50.0, (1.2, 2.4)), (25.0, (0.5, 2.4)), (50.0, (0.5, 2.4)), (50.0, (0.3, 2.4)))
+
+
+def floor_mask(p, tilt_deg: float, step: float = 0.15):
+    """The floor of points ``p [3, h, w]``: pixels whose depth normals are within ``tilt_deg`` of up,
+    connected (4-neighbours, longitude wraps, height steps under ``step`` metres) to such pixels in
+    the bottom tenth of the panorama (the camera stands on the floor).  Predicted floors curve up
+    towards the walls, so a larger tilt reaches farther; table tops are not connected to the floor
+    through upward normals, nor across the depth edge behind them."""
     import torch
 
     from phyir import pano
 
+    h = p.shape[1]
+    up = pano.normals_from_depth(p.norm(dim=0, keepdim=True))[1] > math.cos(math.radians(tilt_deg))
+    down_ok = (p[1, 1:] - p[1, :-1]).abs() < step  # row i to row i + 1
+    right_ok = (p[1].roll(-1, 1) - p[1]).abs() < step  # column j to column j + 1 (wraps)
+    floor = up & (torch.arange(h)[:, None] >= h - max(1, h // 10))
+    while True:
+        grown = floor.clone()
+        grown[1:] |= floor[:-1] & down_ok
+        grown[:-1] |= floor[1:] & down_ok
+        grown |= (floor & right_ok).roll(1, 1) | (floor.roll(-1, 1) & right_ok)
+        grown &= up
+        if bool((grown == floor).all()):
+            return floor
+        floor = grown
+
+
+def hidden(p, i: int, j: int, clearance: float, height: float) -> bool:
+    """Whether something nearer the camera hides (part of) an object ``height`` metres tall and
+    2 x ``clearance`` wide standing at pixel (i, j) of the points ``p [3, h, w]``."""
+    import torch
+
+    h, w = p.shape[1:]
+    horiz = p[[0, 2]].norm(dim=0)
+    r = float(horiz[i, j])
+    half = max(1, math.ceil(math.atan2(clearance, r) / (2 * math.pi / w)))
+    i_top = max(0, int((0.5 - math.atan2(float(p[1, i, j]) + height, r) / math.pi) * h))
+    cols = torch.arange(j - half, j + half + 1) % w
+    return bool((horiz[i_top:i, cols] < r - clearance).any())
+
+
+def floor_spots(scene, n: int, spacing: float = 0.45, clearance: float = 0.3, height: float = 0.6,
+                rows: int = 128):
+    """``n`` free floor pixels (u, v) about ``spacing`` metres apart, sorted left to right: a group
+    ahead of the camera (the panorama's centre column) about PREFERRED_DISTANCE metres away, on open
+    floor where there is some; fewer (or []) when the floor has no room.
+
+    Works on predicted (noisy) geometry, on a grid of about ``rows`` rows (a search per pixel of the
+    full panorama takes minutes).  The floor comes from the depth (:func:`floor_mask`), trying the
+    :data:`SEARCH` levels in turn until one gives ``n`` spots (else the one with most).  A spot is
+    free when no non-floor point between 3 cm and ``height`` metres above it lies within
+    ``clearance`` metres horizontally, nothing nearer the camera hides an object of that height
+    standing there, and the scene's normal layer there is within placement.SNAP_DEG of up (so
+    ``placement.drop`` stands the object upright).
+    """
+    import torch
+
+    from phyir import pano, placement
+
     H, W = scene.size
-    p = scene.depth * pano.directions(H, W)
-    floor_y = float(p[1][scene.normal[1] > 0.99].median())
-    is_floor = (scene.normal[1] > 0.99) & ((p[1] - floor_y).abs() < 0.02)
-    horiz = torch.sqrt(p[0] ** 2 + p[2] ** 2)
-    cand = torch.nonzero(is_floor & (horiz > distance[0]) & (horiz < distance[1])).tolist()
-    cand.sort(key=lambda ij: abs(ij[1] + 0.5 - W / 2))
-    spots, pts = [], []
-    for i, j in cand:
-        c = p[:, i, j]
-        near = torch.linalg.vector_norm(p - c[:, None, None], dim=0) < 0.35
-        if bool((near & ~is_floor & (p[1] > floor_y - 0.5)).any()):
-            continue
-        if all(float(torch.linalg.vector_norm(c - q)) > spacing for q in pts):
-            spots.append((j + 0.5, i + 0.5))
-            pts.append(c)
+    s = max(1, H // rows)
+    h, w = H // s, W // s
+    # point samples, not area means: a mean across a depth edge makes a bridge between surfaces
+    depth = scene.depth.float()[:, s // 2::s, s // 2::s][:, :h, :w]
+    p = depth * pano.directions(h, w)  # [3, h, w]
+    horiz = p[[0, 2]].norm(dim=0)
+    upright = placement.scene_normals(scene)[1, s // 2::s, s // 2::s][:h, :w] > math.cos(
+        math.radians(placement.SNAP_DEG))
+    # what blocks a spot: anything off the floor at its steepest tilt (walls, furniture)
+    blockers = p[:, ~floor_mask(p, max(t for t, _ in SEARCH))].T  # [m, 3]
+    best = []
+    for tilt, distance in SEARCH:
+        floor = floor_mask(p, tilt)
+        cand = torch.nonzero(floor & upright & (horiz > distance[0]) & (horiz < distance[1]))
+        room = torch.full((len(cand),), math.inf)  # horizontal distance to the nearest blocker
+        for k in range(0, len(cand), 256):
+            c = p[:, cand[k:k + 256, 0], cand[k:k + 256, 1]].T  # [c, 3]
+            dy = blockers[None, :, 1] - c[:, None, 1]
+            dist = torch.cdist(c[:, [0, 2]], blockers[:, [0, 2]])
+            dist[(dy <= 0.03) | (dy >= height)] = math.inf
+            room[k:k + 256] = dist.amin(1) if dist.shape[1] else math.inf
+        cand, room = cand[room >= clearance], room[room >= clearance]
+        xz = p[[0, 2]][:, cand[:, 0], cand[:, 1]].T  # [c, 2]
+        r = xz.norm(dim=1)
+        # first spots ahead (near the centre column), about PREFERRED_DISTANCE away, then each spot
+        # nearest the group so far and within GROUP_SPREAD of its first; all prefer open floor
+        crowding = (ROOM - room).clamp_min(0)
+        lon = torch.atan2(xz[:, 0], -xz[:, 1])
+        ahead = (cand[:, 1] + 0.5 - w / 2).abs() * (2 * math.pi / w)
+        first = ahead + (r - PREFERRED_DISTANCE).abs() + crowding
+        spots, tried = [], []
+        for k0 in torch.argsort(first, stable=True).tolist():
+            if len(tried) == FIRST_TRIES or len(spots) == n:
+                break
+            near = [abs(math.remainder(float(lon[k0]) - t, 2 * math.pi)) < GROUP_SPREAD / 4 for t in tried]
+            if any(near) or hidden(p, int(cand[k0, 0]), int(cand[k0, 1]), clearance, height):
+                continue
+            tried.append(float(lon[k0]))
+            group, pts = [k0], [xz[k0]]
+            ok = (torch.remainder(lon - lon[k0] + math.pi, 2 * math.pi) - math.pi).abs() <= GROUP_SPREAD
+            while len(group) < n:
+                key = (xz - torch.stack(pts).mean(0)).norm(dim=1) + crowding
+                key[~ok | (torch.cdist(xz, torch.stack(pts)) < spacing).any(1)] = math.inf
+                k = int(torch.argmin(key))
+                if not math.isfinite(float(key[k])):
+                    break
+                ok[k] = False
+                if not hidden(p, int(cand[k, 0]), int(cand[k, 1]), clearance, height):
+                    group.append(k)
+                    pts.append(xz[k])
+            if len(group) > len(spots):
+                spots = [(j * s + s // 2 + 0.5, i * s + s // 2 + 0.5) for i, j in cand[group].tolist()]
         if len(spots) == n:
+            return sorted(spots)
+        best = max(best, spots, key=len)
+    return sorted(best)
+
+
+def perspective_on(points, size: tuple[int, int], fov: float = 60.0):
+    """A camera at the panorama centre looking at the group of world ``points`` (object centres,
+    ``size`` = (width, height)), its field of view widened until all of them are well inside."""
+    import numpy as np
+    import torch
+
+    from phyir import pano
+    from viewer.view import PerspectiveView
+
+    pts = np.asarray(points, np.float64)
+    lon, lat = pano.dir_to_lonlat(torch.as_tensor(pts.mean(0)))
+    # look down at most 45 degrees (a steeper view of objects next to the camera shows their tops)
+    view = PerspectiveView(fov=fov, yaw=float(lon), pitch=max(float(lat), -math.pi / 4))
+    while view.fov < 110:
+        d = pts @ view.rotation()  # camera frame: x right, y up, looking along -z
+        x = view.focal(size) * d[:, 0] / -d[:, 2]
+        y = view.focal(size) * d[:, 1] / -d[:, 2]
+        if (d[:, 2] < 0).all() and (abs(x) < 0.35 * size[0]).all() and (abs(y) < 0.3 * size[1]).all():
             break
-    return spots
+        view.fov += 5
+    return view, math.degrees(view.yaw), math.degrees(view.pitch)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="+")
     ap.add_argument("--image", default=str(REPO / "docs" / "img" / "insert_gallery.png"))
-    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
+    ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "insert_gallery.json"))
+    ap.add_argument("--view", choices=("equirect", "perspective"), default="equirect",
+                    help="gallery panels: a crop of the panorama, or a camera looking at the objects")
+    ap.add_argument("--cli-out", default=None,
+                    help="keep the `phyir insert` outputs here (default: a temporary folder)")
     args = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     import moderngl
@@ -79,19 +209,26 @@ def main() -> int:
     from viewer.objects import PRESETS, SceneObject, load_mesh, parse_material, primitive
     from viewer.view import EquirectView
 
-    ctx = moderngl.create_standalone_context(backend="egl", require=330)
-    ins = InsertionRenderer(ctx)
+    names = ["diffuse", "matte-silver", "mirror-silver", "vase"]
     rows, results = [], {}
     with tempfile.TemporaryDirectory() as tmp:
+        cli_out = args.cli_out or tmp
+        os.makedirs(cli_out, exist_ok=True)
         vase_path = os.path.join(tmp, "vase.obj")
         vase(vase_path)
         mesh = load_mesh(vase_path)
+        ctx = moderngl.create_standalone_context(backend="egl", require=330)
+        ins = InsertionRenderer(ctx)
         for path in args.scenes:
             name = Path(path).stem
+            t = time.perf_counter()
             scene = load_input(path)
+            load_s = time.perf_counter() - t
             H, W = scene.size
             ins.set_scene(scene)
+            t, c = time.perf_counter(), time.process_time()
             spots = floor_spots(scene, 4)
+            spots_s, spots_cpu = time.perf_counter() - t, time.process_time() - c
             objs = [SceneObject(primitive("sphere"), PRESETS[m], scale=0.15)
                     for m in ("diffuse", "matte-silver", "mirror-silver")]
             objs.append(SceneObject(mesh, parse_material("0.7,0.08,0.06,0.3,0"), scale=1.0))
@@ -99,43 +236,69 @@ def main() -> int:
                 pl = placement.drop(scene, u, v, obj.base_offset())
                 obj.position, obj.rotation, obj.support = pl.position, pl.rotation, (pl.contact, pl.normal)
             objs = objs[:len(spots)]
-            t = time.perf_counter()
-            out = ins.render_view(objs, EquirectView(center=(W / 2, H / 2), zoom=1.0), (W, H), FULL)
-            dt = time.perf_counter() - t
             lum = scene.image.permute(1, 2, 0).numpy() @ np.array([0.2126, 0.7152, 0.0722], np.float32)
             exposure = float(np.log2(0.18 / max(float(np.median(lum[lum > 0])), 1e-12)))
-            us = [s[0] for s in spots]
-            vs = [s[1] for s in spots]
-            cw, ch = W // 3, H // 3
-            x0 = int(min(max(np.mean(us) - cw / 2, 0), W - cw))
-            y0 = int(min(max(np.mean(vs) - ch * 0.6, 0), H - ch))
-            box = (slice(y0, y0 + ch), slice(x0, x0 + cw))
-            before = tonemap(scene.image.permute(1, 2, 0).numpy()[box], exposure)
-            after = tonemap(out["composite"][box], exposure)
-            rows.append(np.concatenate([before, after], 1))
-            results[name] = {"size": f"{W}x{H}", "objects": len(objs), "render_s": round(dt, 3),
-                             "spots": [[round(a, 1), round(b, 1)] for a, b in spots]}
-    ins.release()
-    ctx.release()
-    # the command line, once per scene (a matte-silver sphere; it makes its own GL context)
-    os.makedirs(args.out, exist_ok=True)
-    for path in args.scenes:
-        name = Path(path).stem
-        u, v = results[name]["spots"][0]
-        t = time.perf_counter()
-        rc = cli(["insert", path, "--object", "sphere", "--scale", "0.2", "--material", "matte-silver",
-                  "--at", f"{u - 0.5:.0f},{v - 0.5:.0f}", "-o", os.path.join(args.out, f"insert_{name}.exr")])
-        results[name].update(cli_rc=rc, cli_s=round(time.perf_counter() - t, 2))
-        print(name, results[name], flush=True)
+            entry = {"size": f"{W}x{H}", "objects": names[:len(objs)], "load_s": round(load_s, 2),
+                     "spots_s": round(spots_s, 2), "spots_cpu_s": round(spots_cpu, 2),
+                     "spots": [[round(a, 1), round(b, 1)] for a, b in spots]}
+            t = time.perf_counter()
+            if args.view == "perspective" and objs:
+                size = (440, 330)
+                view, yaw, pitch = perspective_on([o.bounding_sphere()[0] for o in objs], size)
+                out = ins.render_view(objs, view, size, FULL)
+                entry["render_s"] = round(time.perf_counter() - t, 3)
+                entry["view"] = {"fov": view.fov, "yaw": round(yaw, 1), "pitch": round(pitch, 1),
+                                 "size": f"{size[0]}x{size[1]}"}
+                before = ins.render_view([], view, size, FULL)["composite"]
+                after = out["composite"]
+                rows.append(np.concatenate([tonemap(before, exposure), tonemap(after, exposure)], 1))
+            else:
+                out = ins.render_view(objs, EquirectView(center=(W / 2, H / 2), zoom=1.0), (W, H), FULL)
+                entry["render_s"] = round(time.perf_counter() - t, 3)
+                us, vs = [s[0] for s in spots] or [W / 2], [s[1] for s in spots] or [H / 2]
+                cw, ch = W // 3, H // 3
+                x0 = int(min(max(np.mean(us) - cw / 2, 0), W - cw))
+                y0 = int(min(max(np.mean(vs) - ch * 0.6, 0), H - ch))
+                box = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+                before = tonemap(scene.image.permute(1, 2, 0).numpy()[box], exposure)
+                rows.append(np.concatenate([before, tonemap(out["composite"][box], exposure)], 1))
+            results[name] = entry
+            print(name, entry, flush=True)
+        ins.release()
+        ctx.release()
+        # the command line, once per scene (it makes its own GL context): a matte-silver sphere on the
+        # first spot (full-resolution equirect), the vase on its spot (perspective crop)
+        for path in args.scenes:
+            name = Path(path).stem
+            spots = results[name]["spots"]
+            runs = []
+            vase_args = ["--material", "0.7,0.08,0.06,0.3,0", "--view", "perspective"]
+            for obj, k, extra in (("sphere", 0, ["--scale", "0.15", "--material", "matte-silver"]),
+                                  (vase_path, 3, vase_args)):
+                if k >= len(spots):
+                    continue
+                u, v = spots[k]
+                out_path = os.path.join(cli_out, f"insert_{name}_{'sphere' if k == 0 else 'vase'}.exr")
+                t, c = time.perf_counter(), time.process_time()
+                rc = cli(["insert", path, "--object", obj, *extra, "--at", f"{u - 0.5:.0f},{v - 0.5:.0f}",
+                          "-o", out_path])
+                stem = os.path.splitext(out_path)[0]
+                files = {os.path.basename(f): os.path.getsize(f) for f in (out_path, stem + ".png")
+                         if os.path.exists(f)}
+                runs.append({"rc": rc, "wall_s": round(time.perf_counter() - t, 2),
+                             "cpu_s": round(time.process_time() - c, 2), "files": files})
+            results[name]["cli"] = runs
+            print(name, runs, flush=True)
     width = max(r.shape[1] for r in rows)
     grid = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows], 0)
     os.makedirs(os.path.dirname(args.image), exist_ok=True)
     scale = max(1, 1200 // grid.shape[1])
     big = Image.fromarray(grid).resize((grid.shape[1] * scale, grid.shape[0] * scale), Image.LANCZOS)
-    big.save(args.image)
-    with open(os.path.join(args.out, "insert_gallery.json"), "w") as f:
+    big.save(args.image, optimize=True)
+    os.makedirs(os.path.dirname(args.json), exist_ok=True)
+    with open(args.json, "w") as f:
         json.dump(results, f, indent=2)
-    print("wrote", args.image)
+    print("wrote", args.image, args.json)
     return 0
 
 

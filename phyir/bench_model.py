@@ -177,7 +177,7 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
 
 
 def _run(out: Path, cfg: dict, quick: bool, device: str, log: Callable[[str], None]) -> dict:
-    from phyir.bench_render import _write_json
+    from phyir.bench_report import save_target
     from phyir.io import load_scene
 
     out.mkdir(parents=True, exist_ok=True)
@@ -198,9 +198,7 @@ def _run(out: Path, cfg: dict, quick: bool, device: str, log: Callable[[str], No
                 f"relight {_fmt(row['relight_mean'])}")
         del model
     result["config"]["loadavg_end"] = os.getloadavg()
-    _write_json(out / "model.json", result)
-    plot(result, out / "model.png")
-    log(format_table(result))
+    save_target(out, "model", result, plot, format_table, log)
     return result
 
 

@@ -215,7 +215,7 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
 
 
 def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
-    from phyir.bench_render import _write_json
+    from phyir.bench_report import save_target
 
     result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),
                                "torch": torch.__version__, "seeds": list(SEEDS),
@@ -230,10 +230,7 @@ def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     result["growth"] = bench_growth(cfg, device, log)
     result["summary"] = summarize(result)
     result["config"]["loadavg_end"] = os.getloadavg()
-    out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "synth.json", result)
-    plot(result, out / "synth.png")
-    log(format_table(result))
+    save_target(out, "synth", result, plot, format_table, log)
     return result
 
 

@@ -4,7 +4,9 @@ Every term is computed **per sample** and then averaged over the batch, so a bat
 DistributedDataParallel ranks gives the same loss and gradient as the whole batch in one process.
 Formulas (see docs/training.md):
 
-- B, R, M: L2 (mean squared error) of base colour, roughness, metalness.
+- B, R, M: L2 (mean squared error) of base colour, roughness, metalness; metalness by default
+  through the binary cross-entropy (as a KL divergence, 0 at the target) instead
+  (``metallic_loss="l2"`` is the paper's): see :func:`bce`.
 - D: L2 of radial depth in metres (the paper's plain L2; ``depth_mode="scale_invariant"`` gives
   Eigen's scale-invariant log loss instead).
 - N: mean angle (radians) between predicted and true normals.
@@ -72,6 +74,11 @@ class LossOptions:
     render_spp: int = 16
     render_method: str = "prefiltered"
     emission_mask: str = "emission"
+    # "l2" (paper) or "bce": L2 through the sigmoid dies when metal is rare (measured: the first
+    # shipped lite model's metalness logits sat at -30..-64 on every pixel, gradient ~1e-13), while
+    # the cross-entropy's gradient on the logit is p - y and stays alive; both are minimised by the
+    # per-pixel probability of metal
+    metallic_loss: str = "bce"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -88,6 +95,18 @@ def _mean(x: Tensor, mask: Tensor | None = None) -> Tensor:
 
 def l2(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
     return _mean((pred - gt) ** 2, mask)
+
+
+def bce(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Binary cross-entropy of probabilities ``pred`` against targets ``gt`` in [0, 1], less the
+    targets' own entropy (so 0 at ``pred == gt`` also for fractional targets: the binary KL
+    divergence).  Written out, not ``F.binary_cross_entropy``, which clamps log p at -100 and so
+    zeroes the gradient of a saturated sigmoid: through the sigmoid the logit gets about p - y."""
+    tiny = torch.finfo(pred.dtype).tiny
+    logp = torch.log(pred.clamp(min=tiny))
+    log1mp = torch.log((1 - pred).clamp(min=tiny))
+    ent = torch.special.xlogy(gt, gt) + torch.special.xlogy(1 - gt, 1 - gt)
+    return _mean(ent - (gt * logp + (1 - gt) * log1mp), mask)
 
 
 def depth_loss(pred: Tensor, gt: Tensor, mask: Tensor | None = None, mode: str = "l2",
@@ -198,7 +217,8 @@ def total_loss(pred: dict[str, Tensor], gt: PanoScene, weights: LossWeights,
     w = weights.active()
     for k in ("albedo", "roughness", "metallic"):
         if k in w:
-            terms[k] = l2(pick(k), getattr(gt, k))
+            fn = bce if k == "metallic" and options.metallic_loss == "bce" else l2
+            terms[k] = fn(pick(k), getattr(gt, k))
     if "depth" in w:
         terms["depth"] = depth_loss(pred["depth"], gt.depth, None, options.depth_mode, options.si_lambda)
     if "normal" in w:

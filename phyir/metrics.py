@@ -176,11 +176,32 @@ def si_mse(pred: Tensor, gt: Tensor, mask: Tensor | None = None, *, area_weighte
     return mse(s * p, g, valid.to(g.dtype), area_weighted=area_weighted)
 
 
+def binary_auc(scores: Tensor, labels: Tensor) -> float:
+    """Area under the ROC curve of ``scores`` for boolean ``labels`` (same shape, pooled over every
+    element): the probability that a random positive scores above a random negative, ties counted
+    half.  NaN when either class is empty.  Used for metalness, where metal covers under 1 % of the
+    pixels and the MSE says little about whether metal is found."""
+    s = scores.detach().flatten().double()
+    y = labels.flatten().bool()
+    n_pos = int(y.sum())
+    n_neg = y.numel() - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return math.nan
+    # mid-ranks: tied scores share the mean of their ranks
+    uniq, inverse, counts = torch.unique(s, return_inverse=True, return_counts=True)
+    first = torch.cumsum(counts, 0) - counts
+    mid = (first.double() + (counts.double() - 1) / 2)[inverse]
+    return float((mid[y].sum() - n_pos * (n_pos - 1) / 2) / (n_pos * n_neg))
+
+
 def material_metrics(pred_albedo: Tensor | None, gt_albedo: Tensor | None,
                      pred_roughness: Tensor | None = None, gt_roughness: Tensor | None = None,
                      pred_metallic: Tensor | None = None, gt_metallic: Tensor | None = None,
                      mask: Tensor | None = None, *, area_weighted: bool = False) -> dict[str, float]:
-    """``albedo_mse``, ``albedo_si_mse``, ``roughness_mse``, ``metallic_mse`` for the pairs given."""
+    """``albedo_mse``, ``albedo_si_mse``, ``roughness_mse``, ``metallic_mse`` for the pairs given, and
+    ``metallic_auc``: :func:`binary_auc` of the predicted metalness for metal (gt > 0.5) among the
+    pixels in ``mask``, pooled over the images given (NaN without both metal and non-metal; 0.5 for
+    a constant prediction)."""
     out: dict[str, float] = {}
     if pred_albedo is not None and gt_albedo is not None:
         out["albedo_mse"] = mse(pred_albedo, gt_albedo, mask, area_weighted=area_weighted)
@@ -189,6 +210,9 @@ def material_metrics(pred_albedo: Tensor | None, gt_albedo: Tensor | None,
         out["roughness_mse"] = mse(pred_roughness, gt_roughness, mask, area_weighted=area_weighted)
     if pred_metallic is not None and gt_metallic is not None:
         out["metallic_mse"] = mse(pred_metallic, gt_metallic, mask, area_weighted=area_weighted)
+        g = _batch(gt_metallic)
+        keep = _user_mask(mask, g).expand_as(g)
+        out["metallic_auc"] = binary_auc(_batch(pred_metallic).expand_as(g)[keep], g[keep] > 0.5)
     return out
 
 

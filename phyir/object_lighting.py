@@ -221,6 +221,7 @@ class ObjectLighting:
     residual: Tensor  # [3, h, w] the probe without its dominant lights (what occlusion removes)
     lights: list[PlacedLight] = field(default_factory=list)
     reach: Tensor | None = None  # [P, 3] points bounding what the object changes (halo, shadows)
+    marched_from: Tensor | None = None  # [3] the centre the lights were placed from (reuse_lights)
 
 
 def _fibonacci(n: int) -> Tensor:
@@ -265,6 +266,35 @@ def place_lights(lights: list[Light], centre: Tensor, surface: DepthSurface | No
     far = float(surface.r_bound) * 2 if surface is not None else FAR_LIGHT
     shadow = o[n:] + torch.nan_to_num(t[n:], nan=far)[:, None] * dd[n:]
     return out, torch.cat([halo, shadow])
+
+
+def reuse_lights(lights: list[Light], centre: Tensor, radius: float, previous: ObjectLighting,
+                 max_angle: float = 0.15) -> tuple[list[PlacedLight], Tensor, Tensor] | None:
+    """:func:`place_lights` without marching, for an object being dragged: each light keeps the room
+    position of the ``previous`` lighting's light seen from ``centre`` within ``max_angle`` radians
+    of its direction (lamps don't move with the object), and the shadow reach points move with the
+    object.  Returns ``(placed, reach, marched_from)``, or None when a light has no match or the
+    object is more than ``radius`` away from where the lights were last marched (the reach points
+    would be stale)."""
+    start = previous.marched_from if previous.marched_from is not None else previous.centre
+    c = centre.double().reshape(3)
+    if previous.reach is None or float((c - start.double()).norm()) > radius:
+        return None
+    if not previous.lights:
+        return ([], c + HALO * radius * _fibonacci(N_HALO), start) if not lights else None
+    pos = torch.stack([pl.position.double() for pl in previous.lights])  # [L', 3]
+    dist = (pos - c).norm(dim=1)
+    seen = (pos - c) / dist.clamp(min=1e-9)[:, None]
+    out = []
+    for lt in lights:
+        cos = seen @ lt.direction.double()
+        k = int(cos.argmax())
+        if float(cos[k]) < math.cos(max_angle):
+            return None
+        out.append(PlacedLight(lt, pos[k].float(), float(dist[k])))
+    shift = c - previous.centre.double()
+    reach = torch.cat([c + HALO * radius * _fibonacci(N_HALO), previous.reach[N_HALO:].double() + shift])
+    return out, reach, start
 
 
 def correct_light_distance(field: ProbeField, centre: Tensor, probe: Tensor, placed: list[PlacedLight]
@@ -338,16 +368,22 @@ def support_shadowed(probe: Tensor, residual: Tensor, centre: Tensor, radius: fl
 
 def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | None = None,
                     max_lights: int = 4, radius: float = 0.0, steps: int = 32,
-                    support: tuple[Tensor, Tensor] | None = None, probe: Tensor | None = None
-                    ) -> ObjectLighting:
+                    support: tuple[Tensor, Tensor] | None = None, probe: Tensor | None = None,
+                    previous: ObjectLighting | None = None) -> ObjectLighting:
     """The probe at ``centre`` (interpolated, its near lights corrected for the distance between
     the probes and ``centre``), its maps and its placed dominant lights; ``radius``: the object's
     bounding radius (for the reach points), ``steps``: depth-marching steps, ``support``: (point,
     normal) of the surface the object rests on (:func:`support_shadowed`); ``probe``:
-    ``field.probe_at(centre)`` when the caller has it already."""
+    ``field.probe_at(centre)`` when the caller has it already; ``previous``: the same object's lighting
+    a moment ago (while it is dragged), whose lights are kept where they are (:func:`reuse_lights`)."""
     probe = field.probe_at(centre) if probe is None else probe
     lights, residual = extract_lights(probe, max_lights=max_lights)
-    placed, reach = place_lights(lights, centre, surface, radius, steps=steps)
+    kept = None if previous is None else reuse_lights(lights, centre, radius, previous)
+    if kept is None:
+        placed, reach = place_lights(lights, centre, surface, radius, steps=steps)
+        marched_from = centre.float()
+    else:
+        placed, reach, marched_from = kept
     probe = correct_light_distance(field, centre, probe, placed)
     dirs, power, spec = peak_samples(probe)
     ambient, ambient_res = irradiance_at(probe, AXES), irradiance_at(residual, AXES)
@@ -355,4 +391,5 @@ def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | N
     return ObjectLighting(centre=centre.float(), probe=probe, mips=probe_mips(probe),
                           irradiance=irradiance_map(probe), spec_mips=probe_mips(spec), peak_dirs=dirs,
                           peak_power=power, ambient=ambient, ambient_residual=ambient_res,
-                          ambient_bounce=bounce, residual=residual, lights=placed, reach=reach.float())
+                          ambient_bounce=bounce, residual=residual, lights=placed, reach=reach.float(),
+                          marched_from=marched_from.float())

@@ -12,11 +12,13 @@ Methods
 -------
 ``"importance"`` (default)
     Monte Carlo, eq. 6 of the supplement, plus environment sampling: cosine-weighted, GGX
-    half-vector and environment samples (∝ probe radiance x clamped cosine, per pixel: see
-    :class:`_EnvSampler`) in the ratio :data:`SPLIT` (1 : 1 : 2) for pixels with a diffuse lobe,
-    :data:`SPEC_SPLIT` (1 : 1 : 0) for metals, combined with the balance heuristic of multiple
-    importance sampling (every sample is weighted by ``1 / (n_d p_d + n_s p_s + n_e p_e)``), which is
-    unbiased for both lobes.  Metals keep the cosine samples: they cover the GGX lobe's tails, where
+    half-vector and environment samples (∝ probe radiance x clamped cosine, per pixel, continuous:
+    see :class:`_EnvSampler`) in the ratio :data:`SPLIT` (0 : 1 : 1) for pixels with a diffuse lobe,
+    :data:`SPEC_SPLIT` (1 : 1 : 0) for metals.  The specular lobe combines all samples with the
+    balance heuristic of multiple importance sampling (``1 / (n_d p_d + n_s p_s + n_e p_e)``); the
+    diffuse lobe takes the environment samples alone (``1 / (n_e p_e)``), the other strategies only
+    where p_e = 0 (see :func:`_mc_chunk`): unbiased for both lobes.  Metals keep the cosine
+    samples: they cover the GGX lobe's tails, where
     D-proportional half-vector sampling at grazing views has large weights (measured: half/half
     beats 1/8-1/4 cosine and GGX only on metals at R = 0.3-0.5).
 ``"uniform"``
@@ -86,7 +88,7 @@ ROUGH_SPEC_RATIO = 0.2
 ROUGH_ALL_COSINE = False
 # share of the samples per strategy (cosine, GGX, environment): pixels with both lobes, pixels
 # without a diffuse lobe (metals), pixels that sample the diffuse lobe only (rough skip, mirrors)
-SPLIT = (1, 1, 2)
+SPLIT = (0, 1, 1)
 SPEC_SPLIT = (1, 1, 0)
 ROUGH_SPLIT = (1, 0, 1)
 CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
@@ -163,65 +165,64 @@ def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: 
 
 
 # ---------------------------------------------------------------------------------------------
-# environment importance sampling: per-probe texel distributions, mixed like the radiance
+# environment importance sampling: a continuous density, bilinear between the probes' texel centres
+
+
+ENV_FLOOR = 1e-3  # of a probe's mean luminance: keeps every direction above the horizon reachable
+ENV_GRID_ROWS = 16  # probes with more rows are sampled from an area-downsampled luminance map
+ENV_COLUMNS = 2  # nodes per texel along a row: finer steps of the cosine factor across the horizon
 
 
 @dataclass
 class _EnvSampler:
-    """Per-probe texel weights for sampling directions ∝ radiance x solid angle x clamped cosine.
+    """Per-probe luminance at the nodes of the sampling grid, for a density ∝ radiance x clamped cosine.
 
-    A texel's weight ``e[k, t]`` is the mean of probe k's bilinear interpolant over texel t times its
-    solid angle (plus a small floor).  Texels are grouped in cells of ``f x f`` (``f = 1``, cells are
-    texels, unless probes have more than :data:`ENV_CELL_ROWS` rows).  A pixel with normal n mixing
-    probes with weights w_k gives cell c the weight ``W_c = cos_c(n) sum_k w_k E[k, c]`` (E: the
-    cells' sums of e; cos_c: the mean of max(n.l, 0) over the cell's bounding cap, see
-    :func:`_env_cells`) and picks a cell by ``W`` (its row with u1, then its column with u2: monotone
-    in both, so low-discrepancy points stay stratified), then (``f > 1``) a probe with probability
-    ∝ w_k E[k, c] and a texel by probe k's CDF within the cell, then a point uniform in solid angle
-    within the texel.  The density in solid angle is exactly
-    ``cos_c(n) sum_k w_k e[k, t] / (Ω_t sum_c' W_c')`` (:func:`_env_pdf`).
+    Nodes sit on the rows of the probes' texel centres (of an area-downsampled copy when probes have
+    more than :data:`ENV_GRID_ROWS` rows), :data:`ENV_COLUMNS` per texel along each row (texel centres
+    and the points between them, where the radiance is the linear interpolant of its neighbours),
+    plus one row at each pole.  A pixel with normal n mixing probes with weights w_k gives node i the
+    weight ``q_i = (sum_k w_k lum_k[i]) max(n.d_i, 0) cos(lat_i)`` (``cos(lat)``: the solid angle
+    per unit of (u, v), zero at the poles) and draws (u, v) with a density equal to the bilinear
+    interpolant of q.  The radiance is bilinear on that grid too, so radiance x cosine / pdf is
+    nearly constant and continuous.  Sampling is exact and continuous in the random numbers: v from
+    its marginal (piecewise linear in v) with u1, then u from its conditional at that v (piecewise
+    linear in u) with u2 (:func:`_env_directions`).  Directions that land below the horizon (in
+    cells straddling it) are mirrored about the tangent plane, so no sample is wasted and the
+    density above the horizon is p(l) + p(mirror(l)) (:func:`_env_pdf`).
     """
 
-    bounds: Tensor  # [N*C*f*f] float64: (probe*C + cell) + inclusive CDF within the cell, cell-major
-    perm: Tensor  # [C*f*f] long: texel of each cell-major position
-    density: Tensor  # [N*h*w, 1]: e / Ω (unnormalised)
-    cell_sum: Tensor  # [N, C]: E
-    cell_dir: Tensor  # [C, 3] cell centres
-    cell_cos_r: Tensor  # [C] cos / sin of the angular radius of each cell's bounding cap
-    cell_sin_r: Tensor
-    h: int
-    w: int
-    f: int
+    lum: Tensor  # [N, h*w*k] luminance (+ floor) at the nodes
+    node_dir: Tensor  # [h*w*k, 3]
+    node_cos_lat: Tensor  # [h*w*k]
+    row_v: Tensor  # [h+2]: v of the node rows, poles included (0, 0.5, 1.5, ..., h-0.5, h)
+    h: int  # rows of the grid (texel rows)
+    w: int  # texel columns; node column j sits at u = 0.5 + j / k
+    k: int
 
 
-ENV_FLOOR = 1e-3  # of a probe's mean texel weight: keeps every texel reachable
-ENV_CELL_ROWS = 16  # per-pixel cell tables have at most this many rows (2 x as many columns)
+@dataclass
+class _EnvTables:
+    """Pixels' densities: normals ``n [p, 3]``, node weights ``q [p, (h+2)*w*k]`` (zero pole rows),
+    cumulative masses of the dual rows ``row_cdf [p, h+1]`` and of the cells along each node row
+    ``col_cdf [p, (h+2)*w*k]``."""
 
-
-def _cell_factor(h: int, w: int) -> int:
-    f = 1
-    while h % (2 * f) == 0 and w % (2 * f) == 0 and h // f > ENV_CELL_ROWS:
-        f *= 2
-    return f
+    n: Tensor
+    q: Tensor
+    row_cdf: Tensor
+    col_cdf: Tensor
 
 
 @lru_cache(maxsize=8)
-def _cell_geometry(h: int, w: int, f: int, dev: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Cell-major texel order, cell centre directions and the cos / sin of their caps' radii."""
-    hc, wc = h // f, w // f
-    ci, cj, a, b = torch.meshgrid(torch.arange(hc), torch.arange(wc), torch.arange(f), torch.arange(f),
-                                  indexing="ij")
-    perm = ((ci * f + a) * w + cj * f + b).reshape(-1)
-    centre = pano.directions(hc, wc, dtype=torch.float64).permute(1, 2, 0)  # [hc, wc, 3]
-    i = torch.arange(hc + 1, dtype=torch.float64)[:, None] * f
-    j = torch.arange(wc + 1, dtype=torch.float64)[None] * f
-    corner = pano.uv_to_dir(j.expand(hc + 1, wc + 1), i.expand(hc + 1, wc + 1), h, w, dim=-1)
-    cos_r = torch.ones(hc, wc, dtype=torch.float64)
-    for di in (0, 1):
-        for dj in (0, 1):
-            cos_r = torch.minimum(cos_r, (corner[di:di + hc, dj:dj + wc] * centre).sum(-1))
-    cos_r = cos_r.reshape(-1).clamp(-1, 1)
-    return perm.to(dev), centre.reshape(-1, 3).to(dev), cos_r.to(dev), torch.sqrt(1 - cos_r**2).to(dev)
+def _env_grid(h: int, w: int, k: int, dev: torch.device, dt: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
+    """Node directions ``[h*w*k, 3]``, their cos(latitude) and the v of the node rows (poles included)."""
+    u = 0.5 + torch.arange(w * k, dtype=torch.float64) / k
+    v = torch.arange(h, dtype=torch.float64) + 0.5
+    vv, uu = torch.meshgrid(v, u, indexing="ij")
+    node_dir = pano.uv_to_dir(uu, vv, h, w, dim=-1).reshape(-1, 3)
+    cos_lat = torch.sqrt(node_dir[:, 0] ** 2 + node_dir[:, 2] ** 2)
+    pole = torch.zeros(1, dtype=torch.float64)
+    row_v = torch.cat((pole, v, pole + h))
+    return node_dir.to(dev, dt), cos_lat.to(dev, dt), row_v.to(dev, dt)
 
 
 def _env_sampler(probes: Tensor) -> _EnvSampler:
@@ -230,110 +231,113 @@ def _env_sampler(probes: Tensor) -> _EnvSampler:
         N, _, h, w = probes.shape
         dev, dt = probes.device, probes.dtype
         lum = torch.nan_to_num(probes.detach().mean(1), nan=0.0, posinf=0.0).clamp(min=0)
-        # mean of the bilinear interpolant over each texel: [1, 6, 1] / 8 per axis (wrap, clamp)
-        lum = pano.circular_pad(lum[:, None], 1)[:, 0]
-        lum = (lum[:, :, :-2] + 6 * lum[:, :, 1:-1] + lum[:, :, 2:]) * 0.125
-        lum = (lum[:, :-2] + 6 * lum[:, 1:-1] + lum[:, 2:]) * 0.125  # [N, h, w]
-        omega = pano.solid_angles(h, w, dev, dt)
-        e = lum * omega
-        tiny = torch.finfo(dt).tiny * 1e3
-        e = (e + ENV_FLOOR * e.mean((1, 2), keepdim=True) + tiny).reshape(N, h * w)
-        f = _cell_factor(h, w)
-        perm, centre, cos_r, sin_r = _cell_geometry(h, w, f, dev)
-        C = perm.numel() // (f * f)
-        if f == 1:
-            E, bounds = e, e.new_zeros(0, dtype=torch.float64)
-        else:
-            ec = e[:, perm].reshape(N, C, f * f).double()
-            E = ec.sum(-1).to(dt)
-            cdf = ec.cumsum(-1) / ec.sum(-1, keepdim=True)
-            cdf[..., -1] = 1.0
-            bounds = (cdf + torch.arange(N * C, device=dev, dtype=torch.float64).reshape(N, C, 1)).reshape(-1)
-        density = (e / omega.reshape(1, -1)).reshape(-1, 1)
-    return _EnvSampler(bounds, perm, density, E, centre.to(dt), cos_r.to(dt), sin_r.to(dt), h, w, f)
+        if h > ENV_GRID_ROWS:
+            h, w = ENV_GRID_ROWS, max(2, round(w * ENV_GRID_ROWS / h))
+            lum = pano.resize_area(lum[:, None], h, w)[:, 0].clamp(min=0)
+        k = ENV_COLUMNS
+        # the bilinear radiance between texel centres j and j + 1 (wrapping) at the nodes in between
+        step = torch.arange(k, device=dev, dtype=dt) / k
+        lum = torch.lerp(lum[..., None], lum.roll(-1, -1)[..., None], step)  # [N, h, w, k]
+        node_dir, cos_lat, row_v = _env_grid(h, w, k, dev, dt)
+        lum = lum.reshape(N, h * w * k)
+        mean = (lum * cos_lat).sum(1, keepdim=True) / cos_lat.sum()
+        lum = lum + ENV_FLOOR * mean + torch.finfo(dt).tiny * 1e3
+    return _EnvSampler(lum, node_dir, cos_lat, row_v, h, w, k)
 
 
-def _env_cells(env: _EnvSampler, n: Tensor, index: Tensor, weight: Tensor) -> tuple[Tensor, Tensor]:
-    """Per pixel ``[p, C]`` cosine factors of the cells and ``[p, C]`` cell weights (unnormalised).
-
-    The cosine factor of a cell is the mean of max(x, 0) for x uniform between the smallest and the
-    largest cosine to n over the cell's bounding cap: the cell's mean clamped cosine, up to the
-    cap's shape, and positive wherever part of the cell is above the horizon.
-    """
-    c = (n @ env.cell_dir.T).clamp(-1, 1)  # cos of the angle to each cell centre
-    s = torch.sqrt((1 - c * c).clamp(min=0))
-    cr, sr = env.cell_cos_r, env.cell_sin_r
-    hi = torch.where(c >= cr, torch.ones_like(c), c * cr + s * sr)  # cos(max(theta - r, 0))
-    lo = torch.where(c <= -cr, -torch.ones_like(c), c * cr - s * sr)  # cos(min(theta + r, pi))
-    part = hi.clamp(min=0) ** 2 / (2 * (hi - lo)).clamp(min=1e-12)
-    cos_w = torch.where(lo >= 0, (lo + hi) / 2, part)
-    return cos_w, cos_w * _mix(env.cell_sum, index, weight)
+def _env_tables(env: _EnvSampler, n: Tensor, index: Tensor, weight: Tensor) -> _EnvTables:
+    """The density tables of pixels with normals ``n [p, 3]`` and probes ``index/weight [p, K]``."""
+    h, wk = env.h, env.w * env.k
+    p = n.shape[0]
+    q = _mix(env.lum, index, weight) * (n @ env.node_dir.T).clamp(min=0) * env.node_cos_lat
+    q = q.reshape(p, h, wk)
+    q = F.pad(q, (0, 0, 1, 1))  # the poles: zero solid angle per unit of v
+    col = ((q + q.roll(-1, -1)) * 0.5).cumsum(-1)  # cell j spans nodes j and j + 1 (wrapping)
+    rows = col[..., -1]
+    height = env.row_v[1:] - env.row_v[:-1]
+    row_cdf = ((rows[:, :-1] + rows[:, 1:]) * (0.5 * height)).cumsum(-1)
+    return _EnvTables(n, q.reshape(p, -1), row_cdf, col.reshape(p, -1))
 
 
 def _invert(cdf: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
     """Bin ``[..., S]`` of ``u [..., S]`` in the inclusive CDFs ``cdf [..., n]`` (last = 1) and the
-    position within the bin, in [0, 1)."""
+    position within the bin, in [0, 1]."""
     n = cdf.shape[-1]
     i = torch.searchsorted(cdf, u.contiguous(), right=True).clamp(max=n - 1)
     lo = torch.where(i > 0, cdf.gather(-1, (i - 1).clamp(min=0)), torch.zeros_like(u))
-    frac = (u - lo) / (cdf.gather(-1, i) - lo).clamp(min=1e-300)
-    return i, frac.clamp(0, 1 - 2.0**-40)
+    frac = (u - lo) / (cdf.gather(-1, i) - lo).clamp(min=1e-30)
+    return i, frac.clamp(0, 1)
 
 
-def _env_directions(env: _EnvSampler, cells: Tensor, index: Tensor, weight: Tensor, u: Tensor) -> Tensor:
-    """Directions ``[p, S, 3]`` from ``u [p, S, 2]`` for cell weights ``cells [p, C]``."""
-    h, w, f = env.h, env.w, env.f
-    hc, wc = h // f, w // f
-    p, S = u.shape[:2]
-    cw = cells.double().reshape(p, hc, wc)
-    rows = cw.sum(-1).cumsum(-1)
-    r, u1 = _invert(rows / rows[:, -1:].clamp(min=1e-300), u[..., 0].double())  # [p, S]
-    cols = cw.reshape(p * hc, wc)[torch.arange(p, device=u.device)[:, None] * hc + r].cumsum(-1)  # [p,S,wc]
-    c, u2 = _invert(cols / cols[..., -1:].clamp(min=1e-300), u[..., 1:].double())
-    c = r * wc + c[..., 0]
-    u2 = u2[..., 0]
-    if f == 1:
-        texel = c
-    else:  # a probe by w_k E[k, c] (u1 rescaled), then a texel by its CDF within the cell
-        C = hc * wc
-        e_kc = env.cell_sum.double().reshape(-1)[index[:, None, :] * C + c[..., None]]  # [p, S, K]
-        pk = weight.double()[:, None, :] * e_kc
-        k, u1 = _invert(pk.cumsum(-1) / pk.sum(-1, keepdim=True).clamp(min=1e-300), u1[..., None])
-        group = index.gather(1, k[..., 0]) * C + c  # [p, S] (probe, cell)
-        pos, u1 = _invert(env.bounds, (group.double() + u1[..., 0]).reshape(-1))
-        pos, u1 = pos.reshape(p, S), u1.reshape(p, S)
-        # the global search also counts whole groups as bins: the rescaled u1 of a bin is its own
-        ff = f * f
-        pos = torch.minimum(torch.maximum(pos, group * ff), group * ff + ff - 1)
-        texel = env.perm[c * ff + (pos - group * ff)]
-    row, col = texel // w, texel % w
-    # uniform in solid angle within the texel: sin(lat) uniform between the row's edges
-    top = math.pi / 2 - math.pi * row.double() / h
-    s_top, s_bot = torch.sin(top), torch.sin(top - math.pi / h)
-    lat = torch.asin((s_top + (s_bot - s_top) * u1).clamp(-1, 1))
-    lon, _ = pano.uv_to_lonlat(col.double() + u2, torch.zeros_like(lat), h, w)
-    return pano.lonlat_to_dir(lon, lat, dim=-1).to(u.dtype)
+def _linear_inverse(a: Tensor, b: Tensor, xi: Tensor) -> Tensor:
+    """t in [0, 1] with CDF ``xi`` under the density ∝ (1 - t) a + t b (a, b >= 0)."""
+    den = a + torch.sqrt((a * a + xi * (b * b - a * a)).clamp(min=0))
+    t = torch.where(den > 0, xi * (a + b) / den.clamp(min=1e-30), xi)
+    return t.clamp(0, 1)
 
 
-def _env_pdf(env: _EnvSampler, cos_w: Tensor, cells: Tensor, index: Tensor, weight: Tensor,
-             d: Tensor) -> Tensor:
-    """Density ``[p, S, 1]`` of :func:`_env_directions` at directions ``d [p, S, 3]``."""
-    p, s = d.shape[:2]
-    h, w, f = env.h, env.w, env.f
-    u, v = pano.dir_to_uv(d, h, w, dim=-1)
-    col = u.long().clamp(0, w - 1)
-    row = v.long().clamp(0, h - 1)
-    cell = (row // f) * (w // f) + col // f
-    total = cells.sum(-1, keepdim=True)
-    if f == 1:  # the cell weights already hold the mixture: W_t / Ω_t
-        dens = cells.gather(1, cell) / pano.solid_angles(h, w, d.device, d.dtype).reshape(-1)[cell]
-    else:
-        k = index.shape[1]
-        idx = (index[:, None, :] * (h * w) + (row * w + col)[:, :, None]).reshape(p * s, k)
-        wgt = weight[:, None, :].expand(p, s, k).reshape(p * s, k)
-        dens = cos_w.gather(1, cell) * _mix(env.density, idx, wgt).reshape(p, s)
-    pdf = dens / total.clamp(min=1e-30)
-    return torch.where(total > 0, pdf, torch.zeros_like(pdf))[..., None]
+def _lerp_rows(table: Tensor, r: Tensor, c: Tensor, t: Tensor, w: int) -> Tensor:
+    """``table [p, (h+2)*w]`` at column ``c`` of node rows r and r + 1, interpolated at ``t``."""
+    return torch.lerp(table.gather(1, r * w + c), table.gather(1, (r + 1) * w + c), t)
+
+
+def _env_directions(env: _EnvSampler, tab: _EnvTables, u: Tensor) -> Tensor:
+    """Directions ``[p, S, 3]`` from ``u [p, S, 2]``: v by the marginal, u by the conditional at v,
+    mirrored above the horizon."""
+    wk = env.w * env.k
+    u = u.to(tab.q.dtype)
+    r, xi = _invert(tab.row_cdf / tab.row_cdf[:, -1:].clamp(min=1e-30), u[..., 0])  # dual row [p, S]
+    rows = tab.col_cdf[:, wk - 1::wk]  # [p, h+2]: node row sums
+    a, b = rows.gather(1, r), rows.gather(1, r + 1)
+    t = _linear_inverse(a, b, xi)
+    # the cell: the first column whose cumulative mass at v exceeds u2 x the row's mass at v
+    target = u[..., 1] * torch.lerp(a, b, t)
+    lo, hi = torch.zeros_like(r), torch.full_like(r, wk - 1)
+    for _ in range(max(1, (wk - 1).bit_length())):
+        mid = (lo + hi) >> 1
+        right = _lerp_rows(tab.col_cdf, r, mid, t, wk) <= target
+        lo, hi = torch.where(right, mid + 1, lo), torch.where(right, hi, mid)
+    c = lo.clamp(max=wk - 1)
+    prev = torch.where(c > 0, _lerp_rows(tab.col_cdf, r, (c - 1).clamp(min=0), t, wk), torch.zeros_like(t))
+    a = _lerp_rows(tab.q, r, c, t, wk)
+    b = _lerp_rows(tab.q, r, torch.where(c == wk - 1, 0, c + 1), t, wk)
+    xi = ((target - prev) / ((a + b) * 0.5).clamp(min=1e-30)).clamp(0, 1)
+    uu = 0.5 + (c + _linear_inverse(a, b, xi)) / env.k
+    vv = torch.lerp(env.row_v[r], env.row_v[r + 1], t)
+    d = pano.uv_to_dir(uu, vv, env.h, env.w, dim=-1)
+    n = tab.n[:, None]
+    return d - 2 * (d * n).sum(-1, keepdim=True).clamp(max=0) * n
+
+
+def _grid_density(env: _EnvSampler, tab: _EnvTables, u: Tensor, v: Tensor) -> Tensor:
+    """The density's bilinear interpolant of q over cos(lat) at grid coordinates ``u, v [p, S]``
+    (texel units), unnormalised."""
+    h, wk = env.h, env.w * env.k
+    r = torch.floor(v + 0.5).long().clamp(0, h)
+    top = env.row_v[r]
+    t = ((v - top) / (env.row_v[r + 1] - top)).clamp(0, 1)
+    x = (u - 0.5) * env.k
+    c = torch.floor(x)
+    s = x - c
+    c = torch.remainder(c.long(), wk)
+    q0 = _lerp_rows(tab.q, r, c, t, wk)
+    q1 = _lerp_rows(tab.q, r, torch.where(c == wk - 1, 0, c + 1), t, wk)
+    return torch.lerp(q0, q1, s) / torch.sin(v * (math.pi / h)).clamp(min=1e-30)
+
+
+def _env_pdf(env: _EnvSampler, tab: _EnvTables, d: Tensor, uv: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """Density ``[p, S, 1]`` in solid angle of :func:`_env_directions` at unit directions ``d [p, S, 3]``
+    (``uv``: their :func:`_unit_uv`, when already known): p(d) + p(mirror(d)) above the horizon."""
+    h, w = env.h, env.w
+    n = tab.n[:, None]
+    c = (d * n).sum(-1, keepdim=True)
+    u, v = _unit_uv(d) if uv is None else uv
+    um, vm = _unit_uv(d - 2 * c * n)
+    dens = _grid_density(env, tab, u * w, v * h) + _grid_density(env, tab, um * w, vm * h)
+    # per unit of (u, v): k x the interpolant; solid angle per unit of (u, v): cos(lat) 2 pi^2 / (h w)
+    norm = tab.row_cdf[:, -1:] * (2 * math.pi**2 / (h * w * env.k))
+    pdf = dens / norm.clamp(min=1e-30)
+    return torch.where(c > 0, pdf[..., None], torch.zeros_like(c))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -344,7 +348,13 @@ def _mc_chunk(n: Tensor, v: Tensor, base: Tensor, rough: Tensor, metal: Tensor, 
               u_s: Tensor, u_e: Tensor, texels: Tensor, env: _EnvSampler | None, index: Tensor,
               weight: Tensor, h: int, w: int, uniform: bool, with_spec: bool) -> tuple[Tensor, Tensor]:
     """(diffuse, specular) ``[p, 3]`` from ``u_d [p, n_d, 2]`` cosine, ``u_s [p, n_s, 2]`` GGX and
-    ``u_e [p, n_e, 2]`` environment samples (``uniform``: ``u_d`` are uniform-hemisphere samples)."""
+    ``u_e [p, n_e, 2]`` environment samples (``uniform``: ``u_d`` are uniform-hemisphere samples).
+
+    The specular lobe weighs every sample by the balance heuristic over all strategies,
+    ``1 / sum_i n_i p_i(l)``.  The diffuse lobe, which the environment strategy samples almost in
+    proportion, takes environment samples only (``1 / (n_e p_e)``), plus the others' samples (balance
+    heuristic among them) where p_e = 0: MIS weights that sum to one wherever any strategy reaches.
+    """
     n_d, n_s, n_e = u_d.shape[1], u_s.shape[1], u_e.shape[1]
     with torch.no_grad():
         nn, vv = n.detach()[:, None], v.detach()[:, None]
@@ -357,27 +367,34 @@ def _mc_chunk(n: Tensor, v: Tensor, base: Tensor, rough: Tensor, metal: Tensor, 
             hv = local_to_world(ggx_half_vector(u_s, alpha), nn)
             dirs.append(reflect(vv, hv))
         if n_e:
-            cos_w, cells = _env_cells(env, nn[:, 0], index, weight)
-            dirs.append(_env_directions(env, cells, index, weight, u_e))
+            tab = _env_tables(env, nn[:, 0], index, weight)
+            dirs.append(_env_directions(env, tab, u_e).to(nn.dtype))
         l = torch.cat(dirs, 1) if len(dirs) > 1 else dirs[0]
+        uv = _unit_uv(l)
         c = cosines(nn, vv, l, dim=-1)
         nl, _, nh, vh = c
         if uniform:
             pdf = torch.full_like(nl, n_d / (2 * math.pi))
-        else:  # balance heuristic over all strategies: each sample weighs 1 / sum_i n_i p_i(l)
+        else:
             pdf = n_d * cosine_hemisphere_pdf(nl)
             if n_s:
                 pdf = pdf + n_s * ggx_pdf(nh, vh, alpha, ggx_d(nh, alpha))
-            if n_e:
-                pdf = pdf + n_e * _env_pdf(env, cos_w, cells, index, weight, l)
-        # below the horizon the integrand is zero: such (environment) samples are wasted, not biased
-        inv_pdf = torch.where((pdf > 0) & (nl > 0), 1 / pdf.clamp(min=1e-30), torch.zeros_like(pdf))
+        pdf_d = pdf
+        if n_e:
+            pe = n_e * _env_pdf(env, tab, l, uv).to(pdf.dtype)
+            env_sample = torch.arange(l.shape[1], device=l.device)[None, :, None] >= n_d + n_s
+            pdf_d = torch.where(env_sample, pe, torch.where(pe > 0, torch.zeros_like(pdf), pdf))
+            pdf = pdf + pe
+        # below the horizon the integrand is zero: such samples are wasted, not biased
+        up = nl > 0
+        inv_pdf = torch.where((pdf > 0) & up, 1 / pdf.clamp(min=1e-30), torch.zeros_like(pdf))
+        inv_d = torch.where((pdf_d > 0) & up, 1 / pdf_d.clamp(min=1e-30), torch.zeros_like(pdf))
     if n.requires_grad or v.requires_grad:  # the integrand's cosines carry the gradient
         c = cosines(n[:, None], v[:, None], l, dim=-1)
     fd, fs = brdf(*c, base[:, None], rough[:, None], metal[:, None])
-    lw = _radiance(texels, h, w, index, weight, l) * (c[0].clamp(min=0) * inv_pdf)
-    diffuse = (fd * lw).sum(1)
-    spec = (fs * lw).sum(1) if with_spec else torch.zeros_like(diffuse)
+    lw = _radiance(texels, h, w, index, weight, None, uv=uv) * c[0].clamp(min=0)
+    diffuse = (fd * lw * inv_d).sum(1)
+    spec = (fs * lw * inv_pdf).sum(1) if with_spec else torch.zeros_like(diffuse)
     return diffuse, spec
 
 

@@ -95,6 +95,10 @@ class TrainConfig:
     limit_val: int | None = None
     progress: bool = True
     loss: dict = field(default_factory=dict)  # LossOptions overrides
+    # fine-tuning part of a stage's sub-networks: parameter-name prefixes that train (empty: all of
+    # the stage's sub-networks), and modules re-initialised first (e.g. a dead output head)
+    train_only: tuple[str, ...] = ()
+    reinit: tuple[str, ...] = ()
     weights: dict = field(default_factory=dict)  # LossWeights overrides
 
     @staticmethod
@@ -104,7 +108,7 @@ class TrainConfig:
         if bad:
             raise PhyIRError(f"unknown training option(s): {', '.join(bad)}")
         d = dict(d)
-        for k in ("size", "probe_grid"):
+        for k in ("size", "probe_grid", "train_only", "reinit"):
             if d.get(k) is not None:
                 d[k] = tuple(d[k])
         return TrainConfig(**d)
@@ -123,6 +127,9 @@ class TrainConfig:
             opts = dataclasses.replace(LossOptions(), **lo)
         except TypeError as e:
             raise PhyIRError(f"bad loss option: {e}") from None
+        if opts.metallic_loss not in ("l2", "bce"):
+            raise PhyIRError(f"bad loss option: metallic_loss must be 'l2' or 'bce', "
+                             f"not {opts.metallic_loss!r}")
         return st, w, opts
 
 
@@ -311,6 +318,31 @@ class StageForward(nn.Module):
         return self.model.forward_parts(image, grid, light=self.light, refine=self.refine)
 
 
+def _reinit(model: PhyIRModel, names: tuple[str, ...]) -> None:
+    """Re-initialise the parameters of the named modules (their ``reset_parameters``)."""
+    modules = dict(model.named_modules())
+    for name in names:
+        if name not in modules:
+            raise PhyIRError(f"reinit: no module {name!r} in the model (e.g. gmnet.decoders.metallic.out)")
+        for m in modules[name].modules():
+            if hasattr(m, "reset_parameters"):
+                m.reset_parameters()
+
+
+def _restrict_training(model: PhyIRModel, prefixes: tuple[str, ...]) -> None:
+    """Freeze every parameter whose name starts with none of ``prefixes`` (no-op when empty)."""
+    if not prefixes:
+        return
+    names = [n for n, p in model.named_parameters() if p.requires_grad]
+    for prefix in prefixes:
+        if not any(n == prefix or n.startswith(prefix + ".") for n in names):
+            raise PhyIRError(f"train_only: {prefix!r} names no trainable parameter of this stage "
+                             f"(e.g. gmnet.decoders.metallic)")
+    for n, p in model.named_parameters():
+        if not any(n == q or n.startswith(q + ".") for q in prefixes):
+            p.requires_grad_(False)
+
+
 def _lr_lambda(schedule: str, total_steps: int):
     if schedule == "constant":
         return lambda step: 1.0
@@ -390,6 +422,9 @@ def train(cfg: TrainConfig, datasets=None) -> dict:
         trainable = name in stage.train
         getattr(model, name).requires_grad_(trainable)
         getattr(model, name).train(trainable)
+    if not resume:
+        _reinit(model, cfg.reinit)
+    _restrict_training(model, cfg.train_only)
     params = [p for p in model.parameters() if p.requires_grad]
 
     batches = EpochBatches(len(train_set), stage.batch_size, d, cfg.seed)
@@ -644,4 +679,7 @@ def _export(model, path: Path, cfg: TrainConfig, stage: Stage, train_set, step: 
     info = {"stage": cfg.stage, "init": init_from, "steps": step, "epochs": stage.epochs, "lr": stage.lr,
             "batch_size": stage.batch_size, "schedule": cfg.schedule, "seed": cfg.seed,
             "train_seconds": round(seconds, 1), "data": data, "val": val}
+    for k in ("train_only", "reinit", "loss", "weights"):
+        if getattr(cfg, k):
+            info[k] = _jsonable(getattr(cfg, k))
     save_weights(model, path, info)

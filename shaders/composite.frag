@@ -26,6 +26,14 @@
 #ifndef GLOSSY_RECEIVERS
 #define GLOSSY_RECEIVERS 1
 #endif
+// cheaper variants while an object is dragged (viewer.insertion.Quality); software GL runs every
+// instruction of a shader for every pixel, so texture look-ups per pixel set the cost
+#ifndef PROXY_LOOKUPS
+#define PROXY_LOOKUPS 1  // 0: the radiance an object hides looked up once per object, not per proxy
+#endif
+#ifndef BLOCKER_SEARCH
+#define BLOCKER_SEARCH 1  // 0: PCSS without its blocker search: the blocker at the object's bounding sphere
+#endif
 #define MAX_OBJECTS 8
 #define MAX_LIGHTS 16
 #define MAX_PROXIES 64
@@ -111,6 +119,7 @@ float light_visibility(int j, vec3 x) {
     if (any(greaterThan(abs(ndc), vec2(1.0)))) return 1.0;
     float dr = length(x - light_pos[j]);
     float bias = 1e-3 * dr + 0.004;
+#if BLOCKER_SEARCH
     float near = light_near[j];
     float search = clamp(light_size[j] * max(dr - near, 0.0) / (dr * near * light_tan[j]), shadow_texel, 0.5);
     float blockers = 0.0, count = 0.0;
@@ -120,6 +129,10 @@ float light_visibility(int j, vec3 x) {
     }
     if (count == 0.0) return 1.0;
     float db = blockers / count;
+#else
+    // the blocker: the object's side facing the light (a sphere's mean depth over its disc: 2/3 r)
+    float db = light_dist[j] - 0.667 * obj_sphere[light_obj[j]].w;
+#endif
     float penumbra = light_size[j] * (dr - db) / db;
     float radius = max(penumbra / (dr * light_tan[j]), 1.5 * shadow_texel);
     float lit = 0.0;
@@ -134,7 +147,13 @@ void main() {
 #if VIEWER
     vec3 bg = layer_value().rgb;
 #else
-    vec3 bg = texture(scene_image, uv / scene_size).rgb;
+    // explicit gradients: u jumps by a whole turn at the panorama's seam, and implicit derivatives
+    // would pick the coarsest mip level along that line (a dotted seam in perspective exports)
+    vec2 t = uv / scene_size;
+    vec2 tdx = dFdx(t), tdy = dFdy(t);
+    tdx.x -= round(tdx.x);
+    tdy.x -= round(tdy.x);
+    vec3 bg = textureGrad(scene_image, t, tdx, tdy).rgb;
 #endif
     vec4 result = vec4(bg, 0.0);
     vec3 obj_rgb = vec3(0.0);
@@ -178,6 +197,10 @@ void main() {
                 // (its probe's residual over each proxy's cone) and what it sends back
                 float ff_sum = 0.0, keep = 1.0;
                 vec3 acc = vec3(0.0);
+#if !PROXY_LOOKUPS
+                vec3 hid_dir = vec3(0.0);
+                float hid_cone = 0.0;
+#endif
                 for (int q = 0; q < n_proxies; ++q) {
                     if (proxy_obj[q] != k) continue;
                     vec3 w = proxy[q].xyz - x;
@@ -188,12 +211,24 @@ void main() {
                     float ff = sphere_form_factor(dot(n, wn), sin2);
                     if (ff <= 0.0) continue;
                     float cone = 2.0 * PI * (1.0 - sqrt(max(1.0 - min(sin2, 1.0), 0.0)));
+#if PROXY_LOOKUPS
                     float lod = 0.5 * log2(max(cone / residual_texel, 1.0));
                     vec3 hidden = textureLod(obj_probes, vec3(scene_st(wn), float(2 * k)), lod).rgb;
                     acc += ff * (obj_albedo[k] * ambient_bounce(k, -wn) - hidden);
+#else
+                    acc += ff * obj_albedo[k] * ambient_bounce(k, -wn);
+                    hid_dir += ff * wn;
+                    hid_cone += ff * cone;
+#endif
                     ff_sum += ff;
                     keep *= 1.0 - ff;
                 }
+#if !PROXY_LOOKUPS
+                if (ff_sum > 0.0) {  // one look-up: form-factor-weighted direction and cone of the proxies
+                    float lod = 0.5 * log2(max(hid_cone / ff_sum / residual_texel, 1.0));
+                    acc -= ff_sum * textureLod(obj_probes, vec3(scene_st(hid_dir), float(2 * k)), lod).rgb;
+                }
+#endif
                 float fade = smoothstep(obj_reach[k], 0.7 * obj_reach[k], dc);  // no edge at the reach
                 if (ff_sum > 0.0) dE += acc * (fade * PI * (1.0 - keep) / ff_sum);  // overlaps: 1-prod(1-ff)
 #if GLOSSY_RECEIVERS

@@ -12,6 +12,9 @@
 #ifndef FUSION_PLANE
 #define FUSION_PLANE 0
 #endif
+#ifndef SHARP
+#define SHARP 1  // 0: roughness >= mirror_roughness, ibl.glsl never reflects sharply (no marching compiled)
+#endif
 
 in vec3 world_pos;
 in vec3 world_normal;
@@ -68,6 +71,9 @@ vec3 incoming(vec3 p, vec3 l, float lod) {
 }
 
 vec3 incoming_sharp(vec3 p, vec3 l) {
+#if !SHARP
+    return vec3(0.0);  // never called (software GL would still run the march for every pixel)
+#endif
     vec3 x;
     bool on_plane = plane_hit(p, l, x);
 #if FUSION_PLANE

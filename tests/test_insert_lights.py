@@ -10,7 +10,7 @@ from insert_fixtures import box_room
 
 from phyir import pano
 from phyir.lights_extract import extract_lights, luminance
-from phyir.object_lighting import ProbeField, irradiance_map, peak_samples, place_lights
+from phyir.object_lighting import ProbeField, irradiance_map, object_lighting, peak_samples, place_lights
 from phyir.projection import DepthSurface
 
 
@@ -130,3 +130,28 @@ def test_support_shadowed_darkens_the_floor_under_a_sphere():
     assert cube[2].mean() == pytest.approx(1.0, abs=1e-4)  # +y
     assert 0.6 < float(cube[0].mean()) < 1.0  # sideways: part of the floor
     assert torch.equal(support_shadowed(probe, probe, centre, 0.5, None, ambient, []), ambient)
+
+
+def test_dragged_object_keeps_its_lights_where_they_are(monkeypatch):
+    """While dragging (``previous`` given) the lights keep their room positions, seen from the new
+    centre, and are not marched again; past one radius from where they were marched they are."""
+    import phyir.object_lighting as ol
+
+    room = box_room(32, 64, grid=(4, 8), probe_size=(8, 16))
+    field, surface = ProbeField(room), DepthSurface.from_scene(room)
+    p0 = torch.tensor([0.3, -1.2, -1.5])
+    first = object_lighting(field, p0, surface, radius=0.2)
+    assert first.lights
+    marched = []
+    monkeypatch.setattr(ol, "place_lights", lambda *a, **k: marched.append(1) or place_lights(*a, **k))
+    p1 = p0 + torch.tensor([0.05, 0.0, 0.0])
+    moved = object_lighting(field, p1, surface, radius=0.2, previous=first)
+    assert not marched
+    for pl in moved.lights:
+        assert any(torch.equal(pl.position, q.position) for q in first.lights)
+        assert pl.distance == pytest.approx(float((pl.position - p1).norm()), rel=1e-5)
+    shift = (moved.reach[-1] - first.reach[-1]).double()
+    assert torch.allclose(shift, (p1 - p0).double(), atol=1e-5)  # shadow reach points follow
+    assert torch.equal(moved.marched_from, first.marched_from)
+    far = object_lighting(field, p0 + torch.tensor([0.25, 0.0, 0.0]), surface, radius=0.2, previous=moved)
+    assert marched and torch.allclose(far.marched_from, p0 + torch.tensor([0.25, 0.0, 0.0]))

@@ -15,8 +15,10 @@ from phyir.losses import (
     LossOptions,
     LossWeights,
     angular_loss,
+    bce,
     depth_gradient_loss,
     depth_loss,
+    l2,
     probe_loss,
     render_loss,
     sc_loss,
@@ -136,3 +138,19 @@ def test_losses_are_per_sample_means():
 def test_total_loss_needs_an_active_term():
     with pytest.raises(ValueError):
         total_loss({}, _gt_batch(1), LossWeights())
+
+
+def test_metallic_bce_is_zero_at_the_target_and_keeps_a_saturated_head_learning():
+    """The binary KL form: 0 where pred == gt (also fractional gt), log 2 for 0.5 vs 0/1; through a
+    sigmoid saturated at logit -40 the gradient on the logit is ~ p - y (L2's is ~1e-17)."""
+    gt = torch.tensor([0.0, 1.0, 0.3, 0.0]).reshape(1, 1, 2, 2)
+    assert float(bce(gt.clone(), gt)) == pytest.approx(0.0, abs=1e-6)
+    half = torch.full_like(gt[..., :1, :], 0.5)
+    assert float(bce(half, gt[..., :1, :])) == pytest.approx(math.log(2), rel=1e-5)
+    logit = torch.full((1, 1, 2, 2), -40.0, requires_grad=True)
+    bce(torch.sigmoid(logit), gt).sum().backward()
+    expected = (torch.sigmoid(torch.tensor(-40.0)) - gt) / gt.numel()
+    assert torch.allclose(logit.grad, expected, atol=1e-6)
+    logit.grad = None
+    l2(torch.sigmoid(logit), gt).sum().backward()
+    assert float(logit.grad.abs().max()) < 1e-15  # why the paper's L2 alone leaves a dead head

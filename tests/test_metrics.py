@@ -87,6 +87,14 @@ def test_material_metrics_by_hand():
     assert m["albedo_si_mse"] == approx(0.024 / 6, rel=1e-5)
     assert m["roughness_mse"] == approx((0.04 + 0.09) / 2)  # (.2² + .3²) / 2
     assert m["metallic_mse"] == 0
+    assert math.isnan(m["metallic_auc"])  # ground truth (0.7, 0.7): no metal pixel
+    metal_gt = torch.tensor([0.0, 1.0, 1.0, 0.0]).view(1, 1, 4)
+    metal = torch.tensor([0.1, 0.9, 0.05, 0.2]).view(1, 1, 4)  # pairs right: (.9>.1, .9>.2): 2 of 4
+    m = M.material_metrics(None, None, pred_metallic=metal, gt_metallic=metal_gt)
+    assert m["metallic_auc"] == approx(0.5)
+    mask = torch.tensor([1.0, 1.0, 0.0, 1.0]).view(1, 1, 4)  # without the .05 metal pixel: all right
+    m = M.material_metrics(None, None, pred_metallic=metal, gt_metallic=metal_gt, mask=mask)
+    assert m["metallic_auc"] == 1.0
 
 
 def test_probe_log_mse_by_hand():
@@ -148,3 +156,16 @@ def test_meter_and_markdown():
     assert meter.result() == {"a": 2.0, "b": 2.0}
     table = M.markdown_table({"model": {"a": 0.123456, "b": float("nan")}}, digits=3)
     assert table.splitlines() == ["| method | a | b |", "| --- | ---: | ---: |", "| model | 0.123 | – |"]
+
+
+def test_binary_auc_matches_counting_pairs():
+    """Against the definition: the share of (positive, negative) pairs ordered right, ties half."""
+    g = torch.Generator().manual_seed(3)
+    scores = torch.randint(0, 6, (200,), generator=g).float()  # many ties
+    labels = torch.rand(200, generator=g) < 0.2
+    pos, neg = scores[labels], scores[~labels]
+    pairs = (pos[:, None] > neg[None]).double() + 0.5 * (pos[:, None] == neg[None]).double()
+    assert M.binary_auc(scores, labels) == pytest.approx(float(pairs.mean()), abs=1e-12)
+    assert M.binary_auc(labels.float(), labels) == 1.0
+    assert M.binary_auc(-labels.float(), labels) == 0.0
+    assert math.isnan(M.binary_auc(scores, torch.zeros(200, dtype=torch.bool)))

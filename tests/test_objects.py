@@ -117,3 +117,28 @@ def test_materials_presets_and_custom():
     for bad in ("gold", "1,2,3", "0.5,0.5,0.5,1.5,0", "nan,0,0,0,0"):
         with pytest.raises(InputError, match="--material"):
             parse_material(bad)
+
+
+def test_decimate_keeps_the_shape_normals_and_hard_edges():
+    """Vertex clustering (the meshes drawn while dragging): a 20k-triangle sphere at <= 2048
+    triangles stays within 1% of the sphere with radial normals and its area; a finely tessellated
+    box keeps flat, axis-aligned normals on its faces (normals are grouped per axis direction)."""
+    m = trimesh.creation.icosphere(subdivisions=5)
+    ball = objects._finish(m.vertices, None, m.faces, "ball", "ball")
+    lod = ball.lod(2048)
+    assert 1000 < len(lod.faces) <= 2048 and lod is ball.lod(2048)  # computed once
+    r = np.linalg.norm(lod.vertices, axis=1)
+    assert r.min() > 0.99 and r.max() < 1.0001
+    assert (np.sum(lod.normals * lod.vertices / r[:, None], 1) > 0.99).all()
+    area = trimesh.Trimesh(lod.vertices, lod.faces, process=False).area
+    assert area == pytest.approx(4 * np.pi, rel=0.02)
+    assert not lod.closed and np.array_equal(lod.proxy_spheres(), ball.proxy_spheres())
+    assert ball.lod(0) is ball and ball.lod(len(ball.faces)) is ball
+    box = trimesh.creation.box(extents=(2.0, 1.0, 1.0)).subdivide().subdivide().subdivide()
+    box.unmerge_vertices()
+    flat = objects._finish(box.vertices, np.repeat(box.face_normals, 3, axis=0), box.faces, "box", "box")
+    small = objects.decimate(flat, 400)
+    assert len(small.faces) <= 400 < len(flat.faces)
+    assert np.allclose(np.abs(small.normals).max(1), 1.0, atol=1e-6)
+    lo, hi = small.bounds
+    np.testing.assert_allclose(hi - lo, [2.0, 1.0, 1.0], rtol=0.1)

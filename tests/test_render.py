@@ -367,27 +367,71 @@ def test_bench_render_smoke(tmp_path, monkeypatch):
     assert main(["bench", "nonsense", "-o", str(tmp_path)]) == 2
 
 
-@pytest.mark.parametrize("size", [(8, 16), (32, 64)])  # cells are texels / 2x2 texel blocks
+@pytest.mark.parametrize("size", [(8, 16), (32, 64)])  # nodes on the texel grid / a downsampled one
 def test_environment_sampling_density_matches_its_samples(size):
-    # the density _env_pdf reports is the one _env_directions draws from: it integrates to one, and
-    # E[g / pdf] over its samples is the integral of g (any mismatch would bias the estimate)
+    # the density _env_pdf reports is the one _env_directions draws from: it integrates to one, is
+    # zero below the horizon, and E[g / pdf] over its samples is the integral of g (any mismatch
+    # would bias the estimate)
     g = torch.Generator().manual_seed(4)
     h, w = size
     probes = torch.rand(6, 3, h, w, generator=g, dtype=torch.float64) ** 4 * 50
     env = render._env_sampler(probes)
     n = torch.nn.functional.normalize(torch.tensor([[0.3, 0.5, -0.8]], dtype=torch.float64), dim=-1)
     index, weight = torch.tensor([[1, 2, 4, 5]]), torch.tensor([[0.1, 0.2, 0.3, 0.4]], dtype=torch.float64)
-    cos_w, cells = render._env_cells(env, n, index, weight)
-    d, om = _grid(4 * h, 4 * w)
-    pdf = render._env_pdf(env, cos_w, cells, index, weight, d[None])[0, :, 0]
-    assert abs(float((pdf * om).sum()) - 1) < 1e-6
+    tab = render._env_tables(env, n, index, weight)
+    d, om = _grid(8 * h, 8 * w)
+    pdf = render._env_pdf(env, tab, d[None])[0, :, 0]
+    assert abs(float((pdf * om).sum()) - 1) < 1e-3  # (midpoint rule across the jump at the horizon)
+    assert float(pdf[d @ n[0] <= 0].abs().max()) == 0
     u = torch.rand(1, 1 << 16, 2, generator=g, dtype=torch.float64)
-    l = render._env_directions(env, cells, index, weight, u)
-    p = render._env_pdf(env, cos_w, cells, index, weight, l)[0, :, 0]
+    l = render._env_directions(env, tab, u)
+    assert float((l[0] @ n[0]).min()) >= 0  # mirrored above the horizon
+    p = render._env_pdf(env, tab, l)[0, :, 0]
     fn = lambda x: (x @ n[0]).clamp(min=0) * (1.5 + x[:, 0])  # noqa: E731  (zero where pdf is)
     est = float((fn(l[0]) / p).mean())
     ref = float((fn(d) * om).sum())
     assert abs(est / ref - 1) < 0.01, (est, ref)
+
+
+def test_environment_sampling_follows_radiance_times_cosine():
+    # the density is the bilinear interpolant of radiance x cosine between nodes that include the
+    # texel centres: away from the horizon, radiance x cosine / pdf is nearly constant even where
+    # the radiance spans four decades
+    d = pano.directions(16, 32, dtype=torch.float64)
+    src = torch.nn.functional.normalize(torch.tensor([0.4, 0.5, -0.7], dtype=torch.float64), dim=0)
+    env = (0.05 + 500 * torch.exp(40 * ((d * src[:, None, None]).sum(0) - 1))).expand(1, 3, 16, 32)
+    sampler = render._env_sampler(env)
+    n = torch.nn.functional.normalize(src + torch.tensor([0.3, -0.2, 0.4], dtype=torch.float64), dim=0)[None]
+    one = (torch.zeros(1, 1, dtype=torch.long), torch.ones(1, 1, dtype=torch.float64))
+    tab = render._env_tables(sampler, n, *one)
+    u = torch.rand(1, 4096, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    l = render._env_directions(sampler, tab, u)
+    f = render._radiance(render._texels(env), 16, 32, *one, l)[0, :, 0] * (l[0] @ n[0])
+    ratio = f / render._env_pdf(sampler, tab, l)[0, :, 0]
+    far = (l[0] @ n[0]) > 0.3  # cells that the horizon does not cut
+    ratio = ratio[far] / ratio[far].median()
+    assert float(ratio.min()) > 0.7 and float(ratio.max()) < 1.3, (float(ratio.min()), float(ratio.max()))
+
+
+def test_importance_with_eight_times_fewer_samples_beats_uniform_on_a_glossy_dielectric():
+    # the target on a small scale: a glossy dielectric (diffuse-dominated) under an ambient
+    # gradient and three small bright sources, like the benchmark's glossy scene.  Importance
+    # sampling at 8 spp against uniform sampling at 64 (measured: 12.7x lower squared error; the
+    # piecewise-constant environment sampler before the continuous one: 0.46x)
+    d = pano.directions(16, 32, dtype=torch.float64)
+    env = 0.3 + 0.1 * d[1]
+    for a in ([0.5, 0.4, -0.77], [-0.6, 0.7, 0.4], [0.1, -0.2, 0.97]):
+        s = torch.nn.functional.normalize(torch.tensor(a, dtype=torch.float64), dim=0)
+        env = env + 200 * torch.exp(30 * ((d * s[:, None, None]).sum(0) - 1))
+    env = env.expand(3, 16, 32).float()
+    n, v = _pixels(256, seed=12)
+    args = [_as_image(n), _as_image(v), torch.full((3, 1, 256), 0.7), torch.full((1, 1, 256), 0.4),
+            torch.zeros(1, 1, 256)]
+    ref = render.shade_env(*args, env, spp=4096, seed=99)
+    importance = sum(_error(render.shade_env(*args, env, spp=8, seed=s), ref) for s in range(3))
+    uniform = sum(_error(render.shade_env(*args, env, spp=64, method="uniform", seed=s), ref)
+                  for s in range(3))
+    assert importance < uniform / 4, (importance, uniform)
 
 
 def test_environment_sampling_catches_a_small_light_near_the_horizon():

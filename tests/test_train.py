@@ -4,6 +4,7 @@ kill / resume giving identical state, DDP on CPU matching one process, weights f
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
 import signal
@@ -283,6 +284,12 @@ def test_config_file_and_flags(tmp_path):
     assert (cfg.stage, cfg.epochs, cfg.size, cfg.probe_grid) == ("light", 5, (64, 128), None)
     stage, _, opts = cfg.resolved()
     assert (stage.epochs, stage.lr, stage.batch_size, opts.sc_sigma) == (5, 1e-4, 4, 0.2)
+    cfg = TrainConfig.from_dict(options(p.parse_args(["--config", str(tmp_path / "c.toml"), "--loss",
+                                                      "metallic_loss=l2", "--loss", "render_spp=8",
+                                                      "--train-only", "gmnet.decoders.metallic"])))
+    _, _, opts = cfg.resolved()
+    assert (opts.sc_sigma, opts.metallic_loss, opts.render_spp) == (0.2, "l2", 8)
+    assert cfg.train_only == ("gmnet.decoders.metallic",) and LossOptions().metallic_loss == "bce"
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(InputError, match="bad.json: not a valid json config"):
         options(p.parse_args(["--config", str(tmp_path / "bad.json")]))
@@ -295,3 +302,28 @@ def test_bad_options_are_user_errors(tmp_path):
         train(TrainConfig(stage="nope"))
     with pytest.raises(PhyIRError, match="earlier stage"):
         train(_cfg(tmp_path, "light"), datasets=_datasets())
+
+
+def test_train_only_and_reinit_fine_tune_one_head(tmp_path):
+    """``train_only`` freezes every other parameter of the stage; ``reinit`` resets the named module
+    first; both are recorded in the export; bad names are one-line errors."""
+    gm = _cfg(tmp_path / "a", "gm", epochs=1)
+    train(gm, datasets=_datasets())
+    start = load_model(tmp_path / "a" / "gm" / "model.safetensors").state_dict()
+    head = "gmnet.decoders.metallic"
+    cfg = _cfg(tmp_path / "b", "gm", epochs=1, init=str(tmp_path / "a" / "gm" / "model.safetensors"),
+               train_only=(head,), reinit=(head + ".out",), loss={"metallic_loss": "bce"})
+    train(cfg, datasets=_datasets())
+    path = tmp_path / "b" / "gm" / "model.safetensors"
+    after = load_model(path).state_dict()
+    changed = {k for k in start if not torch.equal(start[k], after[k])}
+    assert changed and all(k.startswith(head + ".") for k in changed), sorted(changed)[:5]
+    assert any(k.startswith(head + ".iconv") for k in changed)  # trained, not only re-initialised
+    info = json.loads(path.with_suffix(".json").read_text())
+    assert info["train_only"] == [head] and info["loss"] == {"metallic_loss": "bce"}
+    with pytest.raises(PhyIRError, match="train_only: 'gmnet.nope'"):
+        train(_cfg(tmp_path / "c", "gm", train_only=("gmnet.nope",)), datasets=_datasets())
+    with pytest.raises(PhyIRError, match="reinit: no module 'lnet.nope'"):
+        train(_cfg(tmp_path / "d", "gm", reinit=("lnet.nope",)), datasets=_datasets())
+    with pytest.raises(PhyIRError, match="metallic_loss must be"):
+        train(_cfg(tmp_path / "e", "gm", loss={"metallic_loss": "l1"}), datasets=_datasets())

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import gc
 import math
 import os
 
@@ -35,7 +36,7 @@ from viewer.probes import Pin, make_pin, pixel_values, update_pin
 from viewer.recent import RecentFiles
 from viewer.renderer import COLORMAPS, TONEMAPS, Display, Frame, Marker, Renderer
 from viewer.view import EquirectView, PerspectiveView
-from viewer.worker import Loaded, Worker
+from viewer.worker import Loaded, Worker, preload
 
 UPLOAD_BUDGET_S = 0.004  # texture uploads per frame (seconds; at least one) so arriving layers don't stall
 NEAREST_ZOOM = 1.0       # equirect zoom above which pixels are drawn as squares (nearest)
@@ -94,6 +95,7 @@ class App:
         self.title = title
         self.last_capture: np.ndarray | None = None
         model_kw = {k: v for k, v in (("weights", weights), ("device", device)) if v is not None}
+        preload()  # what jobs would import in the worker, holding the GIL the UI needs
         self.worker = Worker(wake=getattr(self.surface, "wake", None), predict=predict, render=render,
                              threads=threads, predict_kwargs=model_kw)
         self.run_model = run_model
@@ -122,7 +124,10 @@ class App:
         self.timings: dict[str, float] = {}
         self.frame_times: deque[float] = deque(maxlen=240)
         self.job_max_frame = 0.0  # longest frame while the current job ran (s)
+        self.job_max_parts: dict[str, tuple[float, float]] = {}  # that frame's parts: (wall, CPU) s
         self.job_frames = 0
+        self.frame_parts: dict[str, tuple[float, float]] = {}  # the last frame's parts
+        self.sync_parts = False  # wait for the GL after each part, so GL time lands in its part
         # GL resources
         self._textures: dict[tuple[str, str], moderngl.Texture] = {}
         self._tex_version: dict[tuple[str, str], int] = {}  # uploads per texture: in the view's cache key
@@ -143,6 +148,11 @@ class App:
         if self.window is not None:
             self.surface.on_drop(self.on_drop)
         self.frame()  # the first frame compiles imgui's shaders: before any file is opened
+        # Move everything allocated so far (torch, the model's modules, imgui: ~240k objects) out of
+        # the cyclic collector's reach: a full collection holds the GIL while it scans them, and one
+        # triggered by the worker's allocations stopped the UI for 360 ms at load 10.
+        gc.collect()
+        gc.freeze()
 
     def on_drop(self, paths: list[str]) -> None:
         """Files dropped on the window: open the first."""
@@ -205,7 +215,7 @@ class App:
             self._set_gt(gt.detach().cpu().float() if not gt.batched else gt[0])
         self.progress = (None, f"opening {self.name}")
         self.busy = True
-        self.job_max_frame, self.job_frames = 0.0, 0
+        self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
         self._job_start = time.perf_counter()
         self.worker.start(source, name=name, compare=compare, run_model=self.run_model)
         self._title()
@@ -589,12 +599,15 @@ class App:
         keep the pixels drawn (``last_capture``).  Returns the frame's duration in seconds (also
         recorded in ``frame_times``)."""
         t0 = time.perf_counter()
+        parts = _PartTimer(self.surface if self.sync_parts else None)
         self.surface.refresh()
         self.poll()
+        parts.mark("poll")
         uploaded = self._upload_some()
         if uploaded:
             self.request_redraw(2)  # the view catches up next frame
         self._last_uploaded = uploaded
+        parts.mark("upload")
         fw, fh = self.surface.framebuffer_size
         if self.gui is not None:
             self.gui.begin_frame()
@@ -603,6 +616,7 @@ class App:
             self._fit_pending = False
         if self.gui is not None:
             self.gui.build()
+        parts.mark("ui build")
         target = self.surface.target()
         target.use()
         self.ctx.viewport = (0, 0, fw, fh)
@@ -613,14 +627,20 @@ class App:
             # a frame that uploaded a texture shows the previous picture: the redraw waits a frame
             self.renderer.render(target, rect, spec, fb_size=(fw, fh), cache_key=self._view_key(spec, rect),
                                  stale_ok=uploaded)
+        parts.mark("view")
         if self.gui is not None:
             self.gui.end_frame(target)
+        parts.mark("ui draw")
         if capture:
             self.last_capture = self.surface.read()
         self.surface.present()
+        parts.mark("present")
         dt = time.perf_counter() - t0
         self.frame_times.append(dt)
+        self.frame_parts = parts.times
         if self.busy:
+            if dt > self.job_max_frame:
+                self.job_max_parts = dict(parts.times)
             self.job_max_frame = max(self.job_max_frame, dt)
             self.job_frames += 1
         self._redraw = max(0, self._redraw - 1)
@@ -700,6 +720,25 @@ class App:
             self.renderer.release()
         self.surface.close()
         sys.setswitchinterval(self._switch_interval)
+
+
+class _PartTimer:
+    """Wall and UI-thread CPU seconds spent in each named part of a frame.  Wall far above CPU means
+    the UI thread waited: for the GL's threads, for the GIL (held by the worker) or for a core.
+    With a ``surface`` each part waits for the GL work it queued (without holding the GIL), so GL
+    time is billed to its part instead of all to the final present."""
+
+    def __init__(self, surface=None):
+        self.surface = surface
+        self.times: dict[str, tuple[float, float]] = {}
+        self._t, self._cpu = time.perf_counter(), time.thread_time()
+
+    def mark(self, name: str) -> None:
+        if self.surface is not None and name != "present":
+            self.surface.finish()
+        t, cpu = time.perf_counter(), time.thread_time()
+        self.times[name] = (t - self._t, cpu - self._cpu)
+        self._t, self._cpu = t, cpu
 
 
 # ---------------------------------------------------------------------------------------------
@@ -856,8 +895,10 @@ def _apply_args(app: App, args, wait: bool) -> None:
 def _bench(app: App, args) -> int:
     """Frame times while the job runs, then of the idle view: the view pass alone, whole frames
     that redraw the view (exposure nudged each frame) and whole frames that reuse it (UI only)."""
+    app.sync_parts = True  # each part waits for its GL work: the longest frame's parts say where it went
     ok = app.wait_idle(args.timeout)
-    during, n_during = app.job_max_frame, app.job_frames
+    app.sync_parts = False
+    during, n_during, parts = app.job_max_frame, app.job_frames, app.job_max_parts
     for _ in range(3):
         app.frame()
     ev = app.hdr.exposure
@@ -880,6 +921,8 @@ def _bench(app: App, args) -> int:
           f"max {1000 * cached[-1]:.1f} ms")
     print(f"while loading/inferring: longest frame {1000 * during:.1f} ms over {n_during} frames "
           f"(job {app.timings.get('job', float('nan')):.1f} s: {_fmt_timings(app.timings)})")
+    print("  its parts, wall (UI-thread CPU) ms: " +
+          ", ".join(f"{k} {1000 * w:.1f} ({1000 * c:.1f})" for k, (w, c) in parts.items()))
     return 0 if ok else 2
 
 

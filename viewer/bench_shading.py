@@ -126,7 +126,7 @@ def _context():
 
 def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     from phyir.bench_measure import time_calls
-    from phyir.bench_render import _write_json
+    from phyir.bench_report import save_target
     from phyir.bench_synth import pair_noise, rel_l1
     from phyir.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from viewer.insertion import InsertionRenderer
@@ -202,10 +202,7 @@ def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
                       "reference_noise": mean(ref_noise[mat])})
     result["rows"] = table
     result["config"]["loadavg_end"] = os.getloadavg()
-    out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "shading.json", result)
-    plot(result, out / "shading.png")
-    log(format_table(result))
+    save_target(out, "shading", result, plot, format_table, log)
     return result
 
 

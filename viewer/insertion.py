@@ -44,7 +44,7 @@ from phyir.projection import DepthSurface
 from phyir.render import MIRROR_ROUGHNESS
 from phyir.scene import PanoScene
 from viewer import glsl
-from viewer.objects import Material, SceneObject
+from viewer.objects import Material, Mesh, SceneObject
 from viewer.view import EquirectView, PerspectiveView
 
 MAX_OBJECTS, MAX_LIGHTS, MAX_PROXIES = 8, 16, 64  # shaders/composite.frag
@@ -66,11 +66,19 @@ class Quality:
     glossy_receivers: bool = True  # the object replaces what glossy receivers reflect
     halo: float = HALO  # receivers' ambient occlusion reaches this many bounding radii
     relight_tolerance: float = 0.0  # keep the lighting of a moved object while its probe changed less
+    impostor_faces: int = 0  # draw the impostor from a decimated mesh of at most this many triangles (0: all)
+    shadow_faces: int = 0  # the same for the shadow maps
+    proxy_lookups: bool = True  # composite: the radiance an object hides per proxy sphere (else per object)
+    blocker_search: bool = True  # composite: PCSS blocker search (else the blocker at the object's bounds)
+    reuse_lights: bool = False  # a moved object keeps its lights' room positions (reuse_lights)
+    own_shadow_bounds: bool = False  # object.frag: its own contact shadow from its bounding sphere
 
 
 FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
-                   peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03)
+                   peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03,
+                   impostor_faces=2048, shadow_faces=1024, proxy_lookups=False, blocker_search=False,
+                   reuse_lights=True, own_shadow_bounds=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -175,6 +183,7 @@ class InsertionRenderer:
         self._scene_tex: dict[str, moderngl.Texture] = {}
         self.use_projection = True  # mirror reflections from the depth panorama (else the probe only)
         self.footprint_scale = 1.0  # 0: point-sampled mirror reflections (as a path tracer's pixel centres)
+        self.drawn_faces = {"impostor": 0, "shadow": 0}  # triangles the last prepare() drew per pass
 
     # -- programs ----------------------------------------------------------------------------
     def program(self, vert: str, frag: str, **defines: int) -> moderngl.Program:
@@ -262,10 +271,9 @@ class InsertionRenderer:
         _uniform(prog, "jump_threshold", float(self.surface.jump_threshold))
 
     # -- meshes and per-object lighting -------------------------------------------------------
-    def _mesh(self, obj: SceneObject) -> tuple:
-        key = id(obj.mesh)
+    def _mesh(self, m: Mesh) -> tuple:
+        key = id(m)
         if key not in self._meshes:
-            m = obj.mesh
             data = np.hstack([m.vertices, m.normals]).astype(np.float32)
             vbo = self.ctx.buffer(data.tobytes())
             ibo = self.ctx.buffer(m.faces.astype(np.uint32).tobytes())
@@ -278,7 +286,7 @@ class InsertionRenderer:
         alive = {id(o) for o in objects}
         for k in [k for k in self._objects if k not in alive]:
             self._objects.pop(k).release()
-        used = {id(o.mesh) for o in objects}
+        used = {id(m) for o in objects for m in (o.mesh, *o.mesh.lods.values())}
         for k in [k for k in self._meshes if k not in used]:
             _mesh, vbo, ibo, vaos = self._meshes.pop(k)
             for v in vaos.values():
@@ -286,8 +294,8 @@ class InsertionRenderer:
             vbo.release()
             ibo.release()
 
-    def _vao(self, obj: SceneObject, prog: moderngl.Program) -> moderngl.VertexArray:
-        m, vbo, ibo, vaos = self._mesh(obj)
+    def _vao(self, mesh: Mesh, prog: moderngl.Program) -> moderngl.VertexArray:
+        m, vbo, ibo, vaos = self._mesh(mesh)
         if id(prog) not in vaos:
             if "in_normal" in prog:
                 fmt = [(vbo, "3f 3f", "in_position", "in_normal")]
@@ -323,18 +331,31 @@ class InsertionRenderer:
         point, normal = obj.support if obj.support is not None else (centre - [0, radius, 0], (0, 1, 0))
         lighting = object_lighting(self.field, torch.as_tensor(centre, dtype=torch.float32), self.surface,
                                    radius=radius, steps=quality.march_steps,
-                                   support=(torch.as_tensor(point), torch.as_tensor(normal)), probe=raw)
-        if st is not None:
-            st.release()
-        env = self.probe_texture(lighting.mips)
-        spec = self.probe_texture(lighting.spec_mips)
-        irr = self._equirect(lighting.irradiance.permute(1, 2, 0).numpy())
+                                   support=(torch.as_tensor(point), torch.as_tensor(normal)), probe=raw,
+                                   previous=st.lighting if same_shape and quality.reuse_lights else None)
+        env, spec, irr = self._lighting_textures(lighting, st)
         st = _ObjectGPU(obj, key, lighting, env, spec, irr, lighting.ambient.numpy(),
                         lighting.ambient_bounce.numpy(), centre, radius, raw, lighting.reach.numpy(),
                         quality.halo)
         st.lights = self._light_cameras(lighting, centre, radius)
         self._objects[id(obj)] = st
         return st
+
+    def _lighting_textures(self, lighting: ObjectLighting, old: _ObjectGPU | None) -> tuple:
+        """(env, spec, irr) textures of ``lighting``: ``old``'s rewritten when their sizes match (a
+        dragged object: no new textures, no mipmap generation), else new ones (``old``'s released)."""
+        hwc = lambda t: np.ascontiguousarray(t.permute(1, 2, 0).numpy(), np.float32).tobytes()  # noqa: E731
+        h, w = lighting.mips[0].shape[-2:]
+        if old is not None and old.env.size == (w, h) and old.irr.size == lighting.irradiance.shape[:0:-1]:
+            for tex, levels in ((old.env, lighting.mips), (old.spec, lighting.spec_mips)):
+                for k, lv in enumerate(levels):
+                    tex.write(hwc(lv), level=k)
+            old.irr.write(hwc(lighting.irradiance))
+            return old.env, old.spec, old.irr
+        if old is not None:
+            old.release()
+        return (self.probe_texture(lighting.mips), self.probe_texture(lighting.spec_mips),
+                self._equirect(lighting.irradiance.permute(1, 2, 0).numpy()))
 
     @staticmethod
     def _light_cameras(lighting: ObjectLighting, centre: np.ndarray, radius: float) -> list:
@@ -396,24 +417,13 @@ class InsertionRenderer:
                 break
         work.sort(key=lambda t: -t[0])
         self._quality = quality
+        self.drawn_faces = {"impostor": 0, "shadow": 0}
         out: list[tuple[_ObjectGPU, _Tile]] = []
         if not work:
             return out
         # impostors, one tile each in a row
         W = sum(n for *_, n in work)
         fbo = self._atlas("impostors", (W, max(n for *_, n in work)), 4, True)
-        prog = self.program("object.vert", "object.frag", FUSION_PLANE=int(fusion == "differential"))
-        self._bind_scene(prog)
-        self.dfg.use(2)
-        for name, unit in (("env", 0), ("env_irr", 1), ("dfg", 2), ("env_spec", 15)):
-            _uniform(prog, name, unit)
-        _uniform(prog, "spec_samples", int(quality.spec_samples))
-        _uniform(prog, "mirror_roughness", float(MIRROR_ROUGHNESS))
-        _uniform(prog, "lod_bias", 0.0)
-        _uniform(prog, "march_steps", int(quality.march_steps))
-        _uniform(prog, "use_projection", int(self.use_projection))
-        _uniform(prog, "footprint_scale", float(self.footprint_scale))
-        _uniform(prog, "occlusion_eps", 0.01)
         fbo.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
@@ -427,16 +437,19 @@ class InsertionRenderer:
             fbo.viewport = rect
             ctx.scissor = rect
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
-            if st.obj.mesh.closed:  # back faces hidden anyway: cull them
+            prog = self._object_program(st.obj.material, quality, fusion)
+            mesh = st.obj.mesh.lod(quality.impostor_faces)
+            self.drawn_faces["impostor"] += len(mesh.faces)
+            if mesh.closed:  # back faces hidden anyway: cull them
                 ctx.enable(moderngl.CULL_FACE)
-                self._draw_object(prog, st, vp)
+                self._draw_object(prog, st, vp, mesh)
                 ctx.disable(moderngl.CULL_FACE)
             else:  # depth first, so the costly shading runs once per pixel whatever the order
                 fbo.color_mask = (False, False, False, False)
-                self._draw_depth(st, vp)
+                self._draw_depth(st, vp, mesh)
                 fbo.color_mask = (True, True, True, True)
                 ctx.depth_func = "<="
-                self._draw_object(prog, st, vp)
+                self._draw_object(prog, st, vp, mesh)
                 ctx.depth_func = "<"
             out.append((st, _Tile(vp, rect)))
         ctx.scissor = None
@@ -444,7 +457,25 @@ class InsertionRenderer:
         ctx.disable(moderngl.DEPTH_TEST)
         return out
 
-    def _draw_object(self, prog: moderngl.Program, st: _ObjectGPU, vp: np.ndarray) -> None:
+    def _object_program(self, material: Material, quality: Quality, fusion: str) -> moderngl.Program:
+        """object.frag for this material (SHARP: whether ibl.glsl's mirror branch can be taken: software
+        GL runs both sides of a branch, so the marching is compiled out for glossy materials)."""
+        prog = self.program("object.vert", "object.frag", FUSION_PLANE=int(fusion == "differential"),
+                            SHARP=int(material.roughness < MIRROR_ROUGHNESS))
+        self._bind_scene(prog)
+        self.dfg.use(2)
+        for name, unit in (("env", 0), ("env_irr", 1), ("dfg", 2), ("env_spec", 15)):
+            _uniform(prog, name, unit)
+        _uniform(prog, "spec_samples", int(quality.spec_samples))
+        _uniform(prog, "mirror_roughness", float(MIRROR_ROUGHNESS))
+        _uniform(prog, "lod_bias", 0.0)
+        _uniform(prog, "march_steps", int(quality.march_steps))
+        _uniform(prog, "use_projection", int(self.use_projection))
+        _uniform(prog, "footprint_scale", float(self.footprint_scale))
+        _uniform(prog, "occlusion_eps", 0.01)
+        return prog
+
+    def _draw_object(self, prog: moderngl.Program, st: _ObjectGPU, vp: np.ndarray, mesh: Mesh) -> None:
         obj, mat = st.obj, st.obj.material
         st.env.use(0)
         st.irr.use(1)
@@ -466,16 +497,16 @@ class InsertionRenderer:
         point, normal = obj.support if obj.support is not None else (st.centre - [0, st.radius, 0], (0, 1, 0))
         _uniform(prog, "plane_point", tuple(float(c) for c in point))
         _uniform(prog, "plane_normal", tuple(float(c) for c in normal))
-        proxies = obj.world_proxies()[:16]
+        proxies = [(*st.centre, st.radius)] if self._quality.own_shadow_bounds else obj.world_proxies()[:16]
         _uniform(prog, "n_own_proxies", len(proxies))
         _write(prog, "own_proxies", proxies)
-        self._vao(obj, prog).render(moderngl.TRIANGLES)
+        self._vao(mesh, prog).render(moderngl.TRIANGLES)
 
-    def _draw_depth(self, st: _ObjectGPU, vp: np.ndarray) -> None:
+    def _draw_depth(self, st: _ObjectGPU, vp: np.ndarray, mesh: Mesh) -> None:
         prog = self.program("shadow.vert", "depth.frag")
         prog["model"].write(_mat(st.obj.model_matrix()))
         prog["view_proj"].write(_mat(vp))
-        self._vao(st.obj, prog).render(moderngl.TRIANGLES)
+        self._vao(mesh, prog).render(moderngl.TRIANGLES)
 
     def _draw_shadows(self, states: list[_ObjectGPU], quality: Quality) -> None:
         lights = [(st, lt) for st in states for lt in st.lights][:MAX_LIGHTS]
@@ -496,7 +527,9 @@ class InsertionRenderer:
             prog["model"].write(_mat(st.obj.model_matrix()))
             prog["view_proj"].write(_mat(vp))
             prog["light_pos"] = tuple(float(c) for c in pl.position)
-            self._vao(st.obj, prog).render(moderngl.TRIANGLES)
+            mesh = st.obj.mesh.lod(quality.shadow_faces)
+            self.drawn_faces["shadow"] += len(mesh.faces)
+            self._vao(mesh, prog).render(moderngl.TRIANGLES)
         self.ctx.scissor = None
 
     def _composite_uniforms(self, prog: moderngl.Program, drawn: list[tuple[_ObjectGPU, _Tile]]) -> None:
@@ -623,7 +656,7 @@ class InsertionRenderer:
         try:
             kind = int(isinstance(view, PerspectiveView))
             prog = self.program("fullscreen.vert", "composite.frag", VIEW_KIND=kind, VIEWER=0,
-                                GLOSSY_RECEIVERS=int(quality.glossy_receivers))
+                                **_composite_defines(quality))
             fbo.use()
             fbo.viewport = (0, 0, w, h)
             fbo.clear(0.0, 0.0, 0.0, 0.0)
@@ -750,8 +783,7 @@ class InsertionPass:
         d = frame.display
         from viewer.renderer import KINDS, TONEMAPS
 
-        prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1,
-                           GLOSSY_RECEIVERS=int(quality.glossy_receivers),
+        prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1, **_composite_defines(quality),
                            VIEW_KIND=int(isinstance(frame.view, PerspectiveView)), NEAREST=int(frame.nearest),
                            KIND=KINDS[d.kind], TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0)
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
@@ -766,6 +798,11 @@ class InsertionPass:
         ins._fullscreen(prog).render(moderngl.TRIANGLES, vertices=3)
         ctx.viewport = (vx, vy, vw, vh)
         self.last_rect = rect
+
+
+def _composite_defines(quality: Quality) -> dict[str, int]:
+    return {"GLOSSY_RECEIVERS": int(quality.glossy_receivers), "PROXY_LOOKUPS": int(quality.proxy_lookups),
+            "BLOCKER_SEARCH": int(quality.blocker_search)}
 
 
 def _reach_points(st: _ObjectGPU) -> np.ndarray:

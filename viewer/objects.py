@@ -84,6 +84,7 @@ class Mesh:
     name: str = "mesh"
     proxies: np.ndarray | None = None  # [K, 4] spheres (centre, radius) for ambient occlusion
     closed: bool = False  # watertight with outward, consistent winding: back faces can be culled
+    lods: dict = field(default_factory=dict, repr=False, compare=False)  # max faces -> decimate()
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +101,15 @@ class Mesh:
         if self.proxies is None:
             self.proxies = fit_proxies(self)
         return self.proxies
+
+    def lod(self, max_faces: int) -> Mesh:
+        """This mesh with at most ``max_faces`` triangles (:func:`decimate`, computed once per count);
+        the mesh itself when it has no more than that or ``max_faces`` is 0."""
+        if max_faces <= 0 or len(self.faces) <= max_faces:
+            return self
+        if max_faces not in self.lods:
+            self.lods[max_faces] = decimate(self, max_faces)
+        return self.lods[max_faces]
 
 
 def _finish(vertices: np.ndarray, normals: np.ndarray | None, faces: np.ndarray, name: str,
@@ -134,6 +144,55 @@ def _finish(vertices: np.ndarray, normals: np.ndarray | None, faces: np.ndarray,
     n = n / np.maximum(length, 1e-12)[:, None]
     n[~np.isfinite(n).all(1)] = (0.0, 1.0, 0.0)
     return Mesh(v.astype(np.float32), n.astype(np.float32), f.astype(np.uint32), name)
+
+
+def _cluster(mesh: Mesh, cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertex clustering on a ``cells``^3 grid over the bounding box: (vertices, normals, faces).
+    Every vertex of a cell moves to the cell's mean, so the result has no cracks; within a cell,
+    vertices whose normals round to different axis directions stay apart (hard edges keep their
+    normals), each with the mean normal of its group.  Faces with two corners in one cell vanish."""
+    v, n = mesh.vertices.astype(np.float64), mesh.normals.astype(np.float64)
+    lo, hi = mesh.bounds
+    size = max(float((hi - lo).max()), 1e-12)
+    ijk = np.clip(((v - lo) / size * cells).astype(np.int64), 0, cells - 1)
+    cell = (ijk[:, 0] * cells + ijk[:, 1]) * cells + ijk[:, 2]
+    cell_ids, cell_of = np.unique(cell, return_inverse=True)
+    centre = np.zeros((len(cell_ids), 3))
+    np.add.at(centre, cell_of, v)
+    centre /= np.bincount(cell_of, minlength=len(cell_ids))[:, None]
+    bins = ((np.rint(n).astype(np.int64) + 1) * (9, 3, 1)).sum(1)  # 27 axis directions
+    _, vert_of = np.unique(cell_of * 27 + bins, return_inverse=True)
+    nv = int(vert_of.max()) + 1
+    out_cell = np.zeros(nv, np.int64)
+    out_cell[vert_of] = cell_of
+    normal = np.zeros((nv, 3))
+    np.add.at(normal, vert_of, n)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    f = vert_of[mesh.faces.astype(np.int64)]
+    c = out_cell[f]
+    f = f[(c[:, 0] != c[:, 1]) & (c[:, 1] != c[:, 2]) & (c[:, 0] != c[:, 2])]
+    if len(f):  # one copy of each triangle (same corners, same winding)
+        roll = np.argmin(f, axis=1)
+        f = np.stack([f[np.arange(len(f)), (roll + k) % 3] for k in range(3)], 1)
+        f = np.unique(f, axis=0)
+    return centre[out_cell], normal, f
+
+
+def decimate(mesh: Mesh, max_faces: int) -> Mesh:
+    """A coarser stand-in of ``mesh`` with at most ``max_faces`` triangles (vertex clustering on the
+    finest grid that gets there), for the passes that draw it small or blurred while an object is
+    dragged.  It shares the mesh's ambient-occlusion proxies and is never marked closed
+    (clustering can fold triangles over, so back faces are not culled)."""
+    cells = max(int(np.sqrt(max_faces)), 2)
+    while True:
+        v, n, f = _cluster(mesh, cells)
+        if len(f) <= max_faces or cells <= 2:
+            break
+        cells = max(min(cells - 1, int(cells * 0.95 * np.sqrt(max_faces / len(f)))), 2)
+    if len(f) == 0:  # everything in one cell: the mesh is its bounding box's size at most
+        return mesh
+    return Mesh(v.astype(np.float32), n.astype(np.float32), f.astype(np.uint32), f"{mesh.name} (lod)",
+                mesh.proxy_spheres())
 
 
 def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:

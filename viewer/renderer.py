@@ -89,6 +89,10 @@ class Renderer:
         self._hdr: moderngl.Framebuffer | None = None
         self.linear_passes: list[Pass] = []
         self.overlay_passes: list[Pass] = [draw_markers]
+        # the shader variants drawn so far, as software GL tells them apart (program, sampled
+        # textures' classes, target's class): a new one costs a compile at its first draw
+        self.variants: set[tuple] = set()
+        self.first_draws: list[tuple] = []
 
     # -- resources ---------------------------------------------------------------------------
     def texture(self, array: np.ndarray, old: moderngl.Texture | None = None) -> moderngl.Texture:
@@ -117,25 +121,57 @@ class Renderer:
         return self._programs[key]
 
     def warm_up(self, target: moderngl.Framebuffer | None = None) -> None:
-        """Load the colour maps (imports matplotlib) and compile the common program variants now
-        (drawing each once: software GL compiles a shader at its first draw, per target format),
-        so the first frames of a file don't stall on them.  ``target``: the framebuffer frames
-        will go to (a corner of it is drawn over)."""
+        """Load the colour maps (imports matplotlib) and draw every shader variant a file can need
+        once now, so no frame of a loading file stalls on a compile.  Software GL (llvmpipe)
+        compiles a variant at its first draw for each combination of the sampled textures' formats
+        and power-of-two-ness of their sides and of the target's format (see ``variants``): each
+        display variant is drawn with a layer of its real format (one channel for scalar layers),
+        the default display of a panorama and the copy of the cached view for every power-of-two
+        class, into the cache's format and into ``target``, the framebuffer frames go to (a corner
+        of it is drawn over).  29 variants: 3.7 s of CPU without Mesa's shader disk cache (the first
+        run on a machine), 0.1 s from it."""
         for name in (*COLORMAPS, FALSE_COLOUR_MAP):
             self.lut(name)
-        tex = self.texture(np.ones((2, 4, 3), np.float32))
-        fbo = self.ctx.simple_framebuffer((4, 4))
-        for kind in ("hdr", "scalar"):
+        made: list = []
+        textures: dict[tuple[int, int, int], moderngl.Texture] = {}
+
+        def layer(w: int, h: int, c: int) -> moderngl.Texture:
+            if (w, h, c) not in textures:
+                textures[w, h, c] = self.texture(np.ones((h, w, c), np.float32))
+                made.append(textures[w, h, c])
+            return textures[w, h, c]
+
+        cache_tex = self.ctx.texture((4, 4), 4)  # the format of the cached view and the probe images
+        cache = self.ctx.framebuffer([cache_tex])
+        made += [cache, cache_tex]
+        target = target or cache
+        marker = [Marker(1.0, 1.0, (1.0, 1.0, 1.0))]
+        displays = [Display(kind="hdr", tonemap=t) for t in TONEMAPS] + \
+                   [Display(kind=k) for k in ("colour", "normal", "scalar")]
+        for view, nearest in ((EquirectView(), False), (EquirectView(), True), (PerspectiveView(), False)):
+            for d in displays:  # (the app draws the perspective view bilinear only)
+                tex = layer(4, 2, 1 if d.kind == "scalar" else 3)
+                self.render(cache, (0, 0, 4, 4), Frame(tex, (2, 4), view, d, nearest, marker))
+        for w, h in POT_CLASSES:
             for nearest in (False, True):
-                frame = Frame(texture=tex, pano_size=(2, 4), view=EquirectView(zoom=1.0),
-                              display=Display(kind=kind), nearest=nearest,
-                              markers=[Marker(1.0, 1.0, (1.0, 1.0, 1.0))])
-                self.render(fbo, (0, 0, 4, 4), frame)
-                self.render(target or fbo, (0, 0, 4, 4), frame, fb_size=(4, 4), cache_key=(kind, nearest))
+                frame = Frame(layer(w, h, 3), (h, w), EquirectView(), Display(), nearest, marker)
+                self.render(cache, (0, 0, 4, 4), frame)
+                self.render(target, (0, 0, 4, 4), frame, fb_size=(4, 4))  # drawn directly (objects shown)
+            self._release_cache()
+            self.render(target, (0, 0, w, h), frame, fb_size=(4, 4), cache_key=("warm-up",))
         self.ctx.finish()
         self._release_cache()
-        tex.release()
-        fbo.release()
+        for obj in made:
+            obj.release()
+
+    def _note(self, shader: str, defines: dict[str, int], textures: Sequence[moderngl.Texture],
+              target: moderngl.Framebuffer) -> None:
+        """Record the shader variant a draw uses (``variants``; ``first_draws`` in order)."""
+        key = ((shader, *sorted(defines.items())), tuple(map(texture_class, textures)),
+               framebuffer_class(target))
+        if key not in self.variants:
+            self.variants.add(key)
+            self.first_draws.append(key)
 
     def lut(self, name: str) -> moderngl.Texture:
         if name not in self._luts:
@@ -193,6 +229,7 @@ class Renderer:
         fb_h = (fb_size or target.size)[1]
         frame.rect = (x, y, w, h)
         prog, vao = self.program("blit.frag")
+        self._note("blit.frag", {}, (cache.color_attachments[0],), target)
         target.use()
         self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         self.ctx.viewport = (x, fb_h - y - h, w, h)
@@ -221,12 +258,14 @@ class Renderer:
             hdr.use()
             hdr.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             prog, vao = self.program("layer.frag", **view_defs)
+            self._note("layer.frag", view_defs, (frame.texture,), hdr)
             self._set_layer(prog, frame, (0, 0, w, h), h)
             vao.render(moderngl.TRIANGLES, vertices=3)
             for p in self.linear_passes:
                 p(self, frame)
             ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
             prog, vao = self.program("display.frag", **disp_defs)
+            self._note("display.frag", disp_defs, (hdr.color_attachments[0], self._cmap(d)), target)
             target.use()
             ctx.viewport = (x, fb_h - y - h, w, h)
             hdr.color_attachments[0].use(0)
@@ -234,6 +273,7 @@ class Renderer:
             _uniform(prog, "hdr_origin", (float(x), float(fb_h - y - h)))
         else:
             prog, vao = self.program("view.frag", **view_defs, **disp_defs)
+            self._note("view.frag", {**view_defs, **disp_defs}, (frame.texture, self._cmap(d)), target)
             target.use()
             ctx.viewport = (x, fb_h - y - h, w, h)
             self._set_layer(prog, frame, (x, y, w, h), fb_h)
@@ -256,9 +296,13 @@ class Renderer:
         false = d.kind == "hdr" and d.tonemap == "false"
         lo, hi = d.false_range if false else d.range
         _uniform(prog, "range", (float(lo), float(hi) if hi != lo else float(lo) + 1e-6))
-        self.lut(FALSE_COLOUR_MAP if false else d.colormap).use(1)
+        self._cmap(d).use(1)
         _uniform(prog, "cmap", 1)
         _uniform(prog, "background", tuple(float(c) for c in frame.background))
+
+    def _cmap(self, d: Display) -> moderngl.Texture:
+        """The colour map a display samples (the false-colour one for false-colour HDR)."""
+        return self.lut(FALSE_COLOUR_MAP if d.kind == "hdr" and d.tonemap == "false" else d.colormap)
 
     def _set_view(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
         v = frame.view
@@ -298,6 +342,27 @@ class Renderer:
         self._programs.clear()
 
 
+POT_CLASSES = ((4, 2), (3, 2), (4, 3), (3, 3))  # (w, h) sizes: each side a power of two or not
+
+
+def _pot(n: int) -> bool:
+    return n > 0 and n & (n - 1) == 0
+
+
+def texture_class(tex: moderngl.Texture) -> tuple:
+    """What software GL compiles a shader variant for, of a texture it samples: its format and
+    whether each side is a power of two (llvmpipe's static texture state)."""
+    w, h = tex.size
+    return tex.components, tex.dtype, _pot(w), _pot(h)
+
+
+def framebuffer_class(fb: moderngl.Framebuffer) -> tuple:
+    """What software GL compiles a shader variant for, of the framebuffer it draws into: the
+    colour formats and whether there is a depth buffer (a window's own framebuffer: "default")."""
+    colours = tuple((a.components, a.dtype) for a in fb.color_attachments or ()) or ("default",)
+    return colours, fb.depth_attachment is not None
+
+
 def _uniform(prog: moderngl.Program, name: str, value) -> None:
     """Set a uniform unless the compiler dropped it from this variant."""
     if name in prog:
@@ -313,6 +378,7 @@ def draw_markers(r: Renderer, frame: Frame) -> None:
         prog = glsl.program(r.ctx, "markers.vert", "markers.frag")
         r._programs["markers"] = prog, r.ctx.vertex_array(prog, [])
     prog, vao = r._programs["markers"]
+    r._note("markers", {}, (), r.ctx.fbo)
     pos = np.zeros((MAX_MARKERS, 2), np.float32)
     col = np.zeros((MAX_MARKERS, 3), np.float32)
     for k, m in enumerate(ms):

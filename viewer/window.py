@@ -90,8 +90,13 @@ class Headless:
         return np.frombuffer(self._canvas.read(components=3), np.uint8).reshape(h, w, 3)[::-1].copy()
 
     def present(self) -> None:
-        """Wait for the frame.  Through PyOpenGL (ctypes drops the GIL while waiting) when it talks
-        EGL: moderngl's finish() would hold the GIL and stall the worker thread meanwhile."""
+        """Wait for the frame (there is nothing to show it on)."""
+        self.finish()
+
+    def finish(self) -> None:
+        """Wait for the GL work queued so far.  Through PyOpenGL (ctypes drops the GIL while
+        waiting) when it talks EGL: moderngl's finish() would hold the GIL and stall the worker
+        thread meanwhile."""
         if pyopengl_is_egl():
             from OpenGL import GL as gl
 
@@ -195,6 +200,13 @@ class Window:
 
     def present(self) -> None:
         self.glfw.swap_buffers(self.window)
+
+    def finish(self) -> None:
+        """Wait for the GL work queued so far (PyOpenGL drops the GIL while waiting)."""
+        from OpenGL import GL as gl
+
+        _ = self.ctx.error  # clear moderngl's pending GL errors: PyOpenGL would raise on them
+        gl.glFinish()
 
     def set_title(self, title: str) -> None:
         self.glfw.set_window_title(self.window, title)

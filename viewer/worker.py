@@ -217,6 +217,24 @@ class Worker:
             raise Cancelled
 
 
+# Modules a job imports on first use (phyir.io's readers, phyir.predict's model and weights, the
+# re-render; numpy.ma, which np.percentile in layers.auto_range imports at its first call).
+JOB_MODULES = ("numpy.ma", "phyir.io", "phyir.exr", "phyir.ldr", "phyir.rgbe", "phyir.inference",
+               "phyir.weights", "phyir.nets.model", "phyir.data", "safetensors", "safetensors.torch",
+               "phyir.render")
+
+
+def preload() -> None:
+    """Import :data:`JOB_MODULES` on the calling (UI) thread before any job runs.  An import holds
+    the GIL for its whole unmarshal-and-execute (numpy.ma: ~40 ms alone, 160-200 ms inside a job on
+    the loaded 2-core machine, the worker's lower priority stretching it), and the UI thread retakes
+    the GIL after every GL call: a job importing them froze the UI that long
+    (tests/test_viewer_warmup.py)."""
+    for name in JOB_MODULES:
+        if importlib.util.find_spec(name.partition(".")[0]) is not None:  # optional packages
+            importlib.import_module(name)
+
+
 def _lower_priority() -> None:
     """Nice this thread (Linux: per thread) so the UI thread wins the CPU when both want it."""
     if sys.platform.startswith("linux"):

@@ -12,7 +12,7 @@ HELP = "evaluate predictions (or the model on a synthetic split) with the paper'
 DEPTH = ["depth.mae", "depth.abs_rel", "depth.sq_rel", "depth.rmse", "depth.rmse_log", "depth.log10",
          "depth.delta1", "depth.delta2", "depth.delta3"]
 NORMAL = ["normal.mean", "normal.median", "normal.pct_11.25", "normal.pct_22.5", "normal.pct_30"]
-MATERIAL = ["albedo_mse", "albedo_si_mse", "roughness_mse", "metallic_mse"]
+MATERIAL = ["albedo_mse", "albedo_si_mse", "roughness_mse", "metallic_mse", "metallic_auc"]
 LIGHT = ["probe_log_mse", "relight_diffuse", "relight_matte_silver", "relight_mirror_silver"]
 
 

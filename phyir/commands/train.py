@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 HELP = "train GMNet / LNet / GSNet in the stages of the paper (resumable, multi-GPU via torchrun)"
 
@@ -46,6 +47,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit-train", type=int, help="use only the first N training scenes")
     p.add_argument("--limit-val", type=int, help="use only the first N validation scenes")
     p.add_argument("--no-progress", dest="progress", action="store_const", const=False)
+    p.add_argument("--train-only", action="append", metavar="PREFIX",
+                   help="train only parameters under this name (repeatable; e.g. gmnet.decoders.metallic)")
+    p.add_argument("--loss", action="append", metavar="KEY=VALUE", type=_loss_option,
+                   help="a loss option (repeatable; e.g. metallic_loss=l2, sc_sigma=0.2)")
+    p.add_argument("--reinit", action="append", metavar="MODULE",
+                   help="re-initialise this module before training (repeatable)")
+
+
+def _loss_option(text: str) -> tuple[str, object]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value  # a bare word: a string option such as metallic_loss=bce
 
 
 def options(args: argparse.Namespace) -> dict:
@@ -55,11 +72,13 @@ def options(args: argparse.Namespace) -> dict:
     opts = load_config_file(args.config) if args.config else {}
     keys = ("data", "stage", "out", "model", "init", "epochs", "lr", "batch_size", "size", "probe_grid",
             "schedule", "seed", "workers", "device", "amp", "augment", "val", "max_minutes", "max_steps",
-            "ckpt_every", "cache", "limit_train", "limit_val", "progress")
+            "ckpt_every", "cache", "limit_train", "limit_val", "progress", "train_only", "reinit")
     for k in keys:
         v = getattr(args, k, None)
         if v is not None:
             opts[k] = None if v == "native" else v
+    if getattr(args, "loss", None):
+        opts["loss"] = {**opts.get("loss", {}), **dict(args.loss)}
     return opts
 
 

@@ -77,6 +77,56 @@ def noise(seed: int, index: int, settings: TraceSettings) -> dict:
     return out
 
 
+def _concentration(a: Tensor, b: Tensor, mask: Tensor) -> dict:
+    """How the difference of two images is spread: the share of ``sum|a-b|`` carried by the 1 % of
+    pixels that differ most (fireflies), and the rel. L1 after 8x8 block means (low-frequency noise,
+    e.g. of the light map, survives; per-pixel sampling noise averages out)."""
+    import torch.nn.functional as F
+
+    m = mask.to(a.dtype).expand_as(a)
+    diff = ((a - b).abs() * m).sum(0).flatten()
+    top = diff.topk(max(1, diff.numel() // 100)).values.sum()
+    pool = lambda x: F.avg_pool2d((x * m)[None], 8)[0]  # noqa: E731
+    return {"top1_share": float(top / diff.sum().clamp(min=1e-30)),
+            "lowpass8": rel_l1(pool(a), pool(b))}
+
+
+def noise_breakdown(seed: int, index: int, settings: TraceSettings, device=None) -> dict:
+    """Split the two-seed difference of :func:`noise` by source: the light map (built with seed 1 or
+    2, camera samples fixed), the camera's own samples (light map fixed), and the probes' own rays
+    (light map fixed); each with its :func:`_concentration`. Radiometric units (no exposure)."""
+    import numpy as np
+
+    from phyir.synth.rooms import generate_room
+    from phyir.synth.tracer import build_lightmap, render_camera, render_probes
+
+    sc = generate_room(np.random.default_rng([seed, index])).build(device)
+    gen = lambda s: torch.Generator(device=sc.device).manual_seed(s)  # noqa: E731
+    lm1, lm2 = build_lightmap(sc, settings, gen(1)), build_lightmap(sc, settings, gen(2))
+    H, W = settings.size
+    img = lambda lm, s: render_camera(sc, lm, settings, s, gen(s))  # noqa: E731
+    a, g = img(lm1, 1)
+    b, _ = img(lm1, 2)
+    c, _ = img(lm2, 1)
+    chw = lambda x: x.reshape(H, W, 3).permute(2, 0, 1)  # noqa: E731
+    a, b, c = chw(a), chw(b), chw(c)
+    nonem = (g["emission"] < 0.5).reshape(1, H, W)
+    kinds = sc.lights.kind.tolist()
+    out = {"lights": {"area": kinds.count(0), "windows": kinds.count(1), "sun": kinds.count(2)},
+           "camera": rel_l1(a, b, nonem), "camera_conc": _concentration(a, b, nonem),
+           "lightmap": rel_l1(a, c, nonem), "lightmap_conc": _concentration(a, c, nonem)}
+    diffuse = nonem & ((g["metallic"] < 0.5) & (g["roughness"] > 0.6)).reshape(1, H, W)
+    out["camera_diffuse"] = rel_l1(a, b, diffuse)
+    out["camera_glossy"] = rel_l1(a, b, nonem & ~diffuse)
+    out["camera_glossy_err_share"] = float(((a - b).abs() * (nonem & ~diffuse)).sum() /
+                                           ((a - b).abs() * nonem).sum().clamp(min=1e-30))
+    if settings.probe_grid is not None:
+        p1 = render_probes(sc, lm1, settings, gen(1))
+        out["probes_own"] = rel_l1(p1, render_probes(sc, lm1, settings, gen(2)))
+        out["probes_lightmap"] = rel_l1(p1, render_probes(sc, lm2, settings, gen(1)))
+    return out
+
+
 def check_folder(folder: str, count: int = 20, spp: int = 128) -> dict:
     """Consistency over the first ``count`` scene files of a dataset folder."""
     from pathlib import Path

@@ -78,9 +78,11 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
     lights = {"panels_and_lamps": kinds.count(AREA), "windows": kinds.count(PORTAL), "sun": kinds.count(SUN)}
     metal = float((res.metallic[0][nonem] > 0.5).float().mean()) if bool(nonem.any()) else 0.0
     L = sc.lights  # brightest source radiance (channel mean), whether or not a pixel shows it
-    bright = float(L.radiance.mean(1).max())
-    if PORTAL in kinds:
-        bright = max(bright, float(torch.stack((L.zenith, L.horizon, L.ground)).mean(1).max()))
+    rad = L.radiance.mean(1)
+    lamp = float(rad[L.kind == AREA].max()) if AREA in kinds else 0.0  # panels and lamps
+    sky = float(torch.stack((L.zenith, L.horizon, L.ground)).mean(1).max()) if PORTAL in kinds else 0.0
+    sun = float(rad[L.sun_index]) if L.has_sun else 0.0
+    bright = max(lamp, sky, sun)
     d = res.depth[0]
     meta = {
         "source": "phyir synth",
@@ -90,6 +92,8 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
         "lights": json.dumps(lights),
         "metal_fraction": f"{metal:.4f}",
         "brightest_source": f"{bright * k:.6g}",
+        "source_radiance": json.dumps({"lamp": float(f"{lamp * k:.6g}"), "sky": float(f"{sky * k:.6g}"),
+                                       "sun": float(f"{sun * k:.6g}")}),
         "depth_range": f"{float(d.min()):.4f} {float(d.max()):.4f}",
         "camera_height": f"{room.camera[1]:.4f}",
         "probe_offset": "0.05",

@@ -127,6 +127,7 @@ class Lights:
             L.bound[-1] = ((pc - pc.mean(0)).norm(dim=1) + bound[portal]).max()
             e_sun = float(L.radiance[-1].mean()) * L.sun_omega
             power[-1] = e_sun * float(L.area[portal].sum()) * 0.5
+            L.sun_weight = math.pi * e_sun * 0.5  # see select_probs
         L.power = power
         L.prim_light = torch.full((P.n_prims,), -1, dtype=torch.long, device=dev)
         L.prim_light[L.pid[L.pid >= 0]] = torch.nonzero(L.pid >= 0).squeeze(1)
@@ -156,11 +157,38 @@ class Lights:
 
     # -- selection ----------------------------------------------------------------------------
     def select_probs(self, x: Tensor) -> Tensor:
-        """Light-selection probabilities ``[N, n]`` at points ``x [N,3]``."""
+        """Light-selection probabilities ``[N, n]`` at points ``x [N,3]``.
+
+        Area lights and portals: power / distance^2.  The sun: pi x its irradiance where the ray
+        from ``x`` toward the sun passes through a window (:meth:`sun_through_window`), else only the
+        uniform share — most points of a sunny room never see the sun, and sun samples there were
+        wasted (the noisiest rooms).  Any deterministic choice keeps the estimator unbiased: BSDF
+        sampling covers the rest with MIS, and :meth:`pdf` / :meth:`pdf_sun` use the same numbers.
+        """
         d2 = ((x[:, None] - self.centre[None]) ** 2).sum(2)
         w = self.power / torch.maximum(d2, self.bound ** 2 + 1e-4)
+        if self.has_sun:
+            w = w.clone()
+            w[:, self.sun_index] = self.sun_weight * self.sun_through_window(x).float()
         w = w / w.sum(1, keepdim=True).clamp(min=1e-30)
         return (1 - UNIFORM_SHARE) * w + UNIFORM_SHARE / self.n
+
+    def sun_through_window(self, x: Tensor) -> Tensor:
+        """``[N]`` bool: the ray from ``x`` toward the sun crosses a window, its rectangle widened by
+        the sun disc's footprint (occluders ignored)."""
+        d = self.sun_dir
+        hit = torch.zeros(len(x), dtype=torch.bool, device=x.device)
+        tan_r = math.tan(SUN_RADIUS)
+        for li in torch.nonzero(self.kind == PORTAL).squeeze(1).tolist():
+            dn = float(d @ self.nq[li])
+            if abs(dn) < 1e-6:
+                continue
+            t = ((self.c[li] - x) @ self.nq[li]) / dn
+            y = x + t[:, None] * d - self.c[li]
+            m = t.abs() * tan_r / abs(dn)
+            hit |= (t > 0) & ((y @ self.ex[li]).abs() <= self.h[li, 0] + m) & \
+                ((y @ self.ey[li]).abs() <= self.h[li, 1] + m)
+        return hit
 
     # -- sampling -----------------------------------------------------------------------------
     def sample(self, x: Tensor, u: Tensor):
@@ -183,13 +211,12 @@ class Lights:
         dist = torch.full((N,), float("inf"), device=x.device)
         pdf = torch.zeros(N, device=x.device)
         gk = self.gkind[li]
-        # quads (panels, portals): uniform by area
+        # quads (panels, portals): uniform in the subtended solid angle
         m = torch.nonzero(gk == G.QUAD).squeeze(1)
         if m.numel():
             i = li[m]
-            y = (self.c[i] + self.ex[i] * ((2 * u1[m] - 1) * self.h[i, 0])[:, None]
-                 + self.ey[i] * ((2 * u2[m] - 1) * self.h[i, 1])[:, None])
-            w[m], dist[m], pdf[m] = _area_pdf(x[m], y, self.nq[i], self.area[i], one_sided=True)
+            w[m], dist[m], pdf[m] = _rect_sample(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i],
+                                                 self.h[i], u1[m], u2[m])
         # spheres: uniform in the subtended cone
         m = torch.nonzero(gk == G.SPH).squeeze(1)
         if m.numel():
@@ -227,8 +254,9 @@ class Lights:
         m = torch.nonzero(gk == G.QUAD).squeeze(1)
         if m.numel():
             i = li[m]
+            omega = _rect_solid_angle(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i])
             cos_l = -(w[m] * self.nq[i]).sum(1)
-            out[m] = torch.where(cos_l > 0, d2[m] / (self.area[i] * cos_l.clamp(min=1e-8)), 0.0)
+            out[m] = torch.where((cos_l > 0) & (omega > 0), 1.0 / omega.clamp(min=1e-30), 0.0)
         m = torch.nonzero(gk == G.SPH).squeeze(1)
         if m.numel():
             i = li[m]
@@ -248,6 +276,61 @@ class Lights:
         psel = self.select_probs(x)[:, self.sun_index]
         inside = (w @ self.sun_dir) >= self.sun_cos
         return torch.where(inside, psel / self.sun_omega, 0.0)
+
+
+def _rect_frame(x, c, ex, ey, n, h):
+    """Spherical-rectangle set-up (Urena et al. 2013) of one-sided quads seen from ``x``, in float64:
+    the rectangle's corner coordinates (x0, x1, y0, y1, z0 < 0) in the frame (ex, ey, -n) at ``x``,
+    its solid angle ``S`` (0 from behind the emitting side) and the constants b0, b1, k."""
+    f = lambda t: t.double()  # noqa: E731
+    x, c, ex, ey, n, h = map(f, (x, c, ex, ey, n, h))
+    d = c - x
+    z0 = (d * n).sum(1)  # < 0 on the emitting side (n points into the room)
+    x0 = (d * ex).sum(1) - h[:, 0]
+    y0 = (d * ey).sum(1) - h[:, 1]
+    x1, y1 = x0 + 2 * h[:, 0], y0 + 2 * h[:, 1]
+    z = z0.clamp(max=-1e-9)
+    # normals of the spherical rectangle's edges (frame with z = +n so that z0 < 0)
+    n0 = torch.stack((torch.zeros_like(z), z, -y0), 1)
+    n1 = torch.stack((-z, torch.zeros_like(z), x1), 1)
+    n2 = torch.stack((torch.zeros_like(z), -z, y1), 1)
+    n3 = torch.stack((z, torch.zeros_like(z), -x0), 1)
+    n0, n1, n2, n3 = (v / v.norm(dim=1, keepdim=True) for v in (n0, n1, n2, n3))
+    ac = lambda a, b: torch.acos((-(a * b).sum(1)).clamp(-1, 1))  # noqa: E731
+    g0, g1, g2, g3 = ac(n0, n1), ac(n1, n2), ac(n2, n3), ac(n3, n0)
+    k = 2 * math.pi - g2 - g3
+    S = (g0 + g1 - k).clamp(min=0)
+    S = torch.where(z0 < -1e-9, S, 0.0)
+    return x0, x1, y0, y1, z, S, n0[:, 2], n2[:, 2], k
+
+
+def _rect_solid_angle(x, c, ex, ey, n, h) -> Tensor:
+    return _rect_frame(x, c, ex, ey, n, h)[5].float()
+
+
+def _rect_sample(x, c, ex, ey, n, h, u1, u2):
+    """Direction uniform in the solid angle of the quad (Urena et al. 2013): ``(w, dist, pdf)``."""
+    x0, x1, y0, y1, z0, S, b0, b1, k = _rect_frame(x, c, ex, ey, n, h)
+    u1, u2 = u1.double(), u2.double()
+    au = u1 * S + k
+    fu = (torch.cos(au) * b0 - b1) / torch.sin(au)
+    cu = (torch.sign(fu) / torch.sqrt(fu * fu + b0 * b0)).clamp(-1, 1)
+    cu = torch.where(fu == 0, 0.0, cu)
+    xu = (-(cu * z0) / torch.sqrt((1 - cu * cu).clamp(min=1e-30))).clamp(x0, x1)
+    dd = torch.sqrt(xu * xu + z0 * z0)
+    h0 = y0 / torch.sqrt(dd * dd + y0 * y0)
+    h1 = y1 / torch.sqrt(dd * dd + y1 * y1)
+    hv = h0 + u2 * (h1 - h0)
+    yv = torch.where(hv * hv < 1 - 1e-12, hv * dd / torch.sqrt((1 - hv * hv).clamp(min=1e-30)), y1)
+    yv = yv.clamp(y0, y1)
+    # the point on the quad, back in world space (ex, ey, n frame at x; z0 along n)
+    x64 = x.double()
+    y = x64 + xu[:, None] * ex.double() + yv[:, None] * ey.double() + z0[:, None] * n.double()
+    v = y - x64
+    dist = v.norm(dim=1).clamp(min=1e-12)
+    w = (v / dist[:, None]).float()
+    pdf = torch.where(S > 1e-12, 1.0 / S.clamp(min=1e-30), 0.0).float()
+    return w, dist.float(), pdf
 
 
 def _area_pdf(x, y, n, area, one_sided: bool):

@@ -71,6 +71,7 @@ def statistics(paths: list[Path]) -> dict:
     from phyir.io import load_scene
 
     light_counts, suns, metal, dmin, dmax, dmed, secs, widths, heights, ratio, src = ([] for _ in range(11))
+    by_kind = {"lamp": [], "sky": [], "sun": []}
     kinds = {"rect": 0, "L": 0}
     for p in paths:
         s = load_scene(p)
@@ -95,6 +96,10 @@ def statistics(paths: list[Path]) -> dict:
             ratio.append(float(lum[em].max()) / med)
         if "brightest_source" in s.meta:  # includes the sun and emitters no pixel shows
             src.append(float(s.meta["brightest_source"]) / med)
+        if "source_radiance" in s.meta:  # panels/lamps, sky, sun separately (0: none)
+            for name, v in json.loads(s.meta["source_radiance"]).items():
+                if v > 0:
+                    by_kind[name].append(v / med)
     n = len(paths)
     hist = {str(k): light_counts.count(k) for k in sorted(set(light_counts))}
     q = lambda v: [float(np.percentile(v, x)) for x in (0, 50, 100)] if v else []  # noqa: E731
@@ -107,7 +112,10 @@ def statistics(paths: list[Path]) -> dict:
             "emitter_to_median_ratio_all": sorted(round(r, 1) for r in ratio),
             "source_to_median_ratio_min_median_max": q(src),
             "source_to_median_ratio_all": sorted(round(r, 1) for r in src),
-            "render_seconds_mean": float(np.mean(secs))}
+            "render_seconds_mean": float(np.mean(secs)),
+            **{f"{k}_to_median_ratio_min_median_max": q(v) for k, v in by_kind.items()},
+            **{f"{k}_to_median_ratio_all": sorted(round(r, 1) for r in v) for k, v in by_kind.items()},
+            "lamp_ratio_in_1e2_1e4": [sum(1e2 <= r <= 1e4 for r in by_kind["lamp"]), len(by_kind["lamp"])]}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,128 @@
+"""Light sources of the synthetic rooms: unbiased next-event estimation and the dynamic range."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from phyir import sampling as S
+from phyir.synth import geometry as G
+from phyir.synth.dataset import tiny_settings
+from phyir.synth.lights import AREA, SUN, _area_pdf, _rect_sample, _rect_solid_angle
+from phyir.synth.rooms import SOURCE_RATIO, generate_room
+from phyir.synth.tracer import SPAWN, trace, visible
+
+
+def _room_with(seed: int, want_sun: bool):
+    for i in range(60):
+        sc = generate_room(np.random.default_rng([seed, i])).build()
+        if sc.lights.has_sun == want_sun and (want_sun or AREA in sc.lights.kind.tolist()):
+            return sc
+    raise AssertionError("no such room")
+
+
+def _floor_points(sc, n: int) -> torch.Tensor:
+    """Floor points seen straight down-ish from the camera, lifted off the surface."""
+    g = torch.Generator().manual_seed(0)
+    d = torch.randn(n, 3, generator=g) * torch.tensor([0.4, 0.0, 0.4]) + torch.tensor([0.0, -1.0, 0.0])
+    d = d / d.norm(dim=1, keepdim=True)
+    t, pid = G.intersect(sc.prims, torch.zeros_like(d), d)
+    return t[:, None] * d + torch.tensor([0.0, SPAWN, 0.0])
+
+
+def test_rect_sampling_covers_the_solid_angle_uniformly():
+    """Spherical-rectangle sampling: its solid angle equals the area integral of cos/d^2, the
+    sampled points lie on the quad, and an integral over the quad agrees with area sampling."""
+    g = torch.Generator().manual_seed(1)
+    N = 100000
+    c, ex, ey = torch.tensor([[0.3, 2.5, -0.4]]), torch.tensor([[1.0, 0, 0]]), torch.tensor([[0, 0, 1.0]])
+    n = torch.linalg.cross(ex, ey)  # (0,-1,0): emits downward, like a ceiling panel
+    h = torch.tensor([[0.6, 0.3]])
+    for x0 in ([0.0, 1.0, 0.0], [2.0, 2.3, 1.0], [0.5, 2.2, -0.2]):
+        x = torch.tensor([x0]).expand(N, 3)
+        u = torch.rand(N, 2, generator=g)
+        E = lambda t: t.expand(N, t.shape[1])  # noqa: E731
+        w, dist, pdf = _rect_sample(x, E(c), E(ex), E(ey), E(n), E(h), u[:, 0], u[:, 1])
+        y = c + ex * ((2 * u[:, :1] - 1) * h[:, :1]) + ey * ((2 * u[:, 1:] - 1) * h[:, 1:])
+        wa, _, pa = _area_pdf(x, y, E(n), 4 * h.prod(), one_sided=True)
+        inv_pa = torch.where(pa > 0, 1 / pa.clamp(min=1e-30), 0.0)
+        omega = float(_rect_solid_angle(x[:1], c, ex, ey, n, h))
+        assert omega == pytest.approx(float(inv_pa.mean()), rel=0.02)
+        assert torch.allclose(pdf, torch.full_like(pdf, 1 / omega), rtol=1e-4)
+        p = x + w * dist[:, None]
+        assert float(((p - c) @ n[0]).abs().max()) < 1e-4
+        assert float(((p - c) @ ex[0]).abs().max()) < 0.6 + 1e-4
+        f = lambda v: v[:, 0] ** 2 + (v[:, 1] > 0.9).float()  # noqa: E731
+        assert float((f(w) / pdf).mean()) == pytest.approx(float((f(wa) * inv_pa).mean()), rel=0.03)
+
+
+@pytest.mark.parametrize("want_sun", [True, False])
+def test_light_sampling_agrees_with_cosine_sampling(want_sun):
+    """Direct irradiance at floor points: next-event estimation (power/distance selection, the sun
+    only where it can pass a window, spherical-rectangle panels and windows) against plain cosine
+    sampling of the hemisphere; and Lights.pdf / pdf_sun give back the sampling densities."""
+    sc = _room_with(2022 if want_sun else 7, want_sun)
+    L = sc.lights
+    pts = _floor_points(sc, 3)
+    nrm = torch.tensor([[0.0, 1.0, 0.0]])
+    g = torch.Generator().manual_seed(2)
+    K = 60000
+    for q in pts:
+        x = q.expand(K, 3).contiguous()
+        u = torch.rand(K, 3, generator=g)
+        li, w, dist, le, pdf, is_sun = L.sample(x, u)
+        cos = w[:, 1]
+        ok = (pdf > 0) & (cos > 0)
+        vis = visible(sc, x, w, dist, is_sun, ok, li)
+        contrib = le * (cos / pdf.clamp(min=1e-30))[:, None]
+        e_nee = float(torch.where((ok & vis)[:, None], contrib, 0.0).mean())
+        # densities: the area lights' by Lights.pdf, the sun's by pdf_sun
+        m = ok & ~is_sun
+        y = x[m] + w[m] * dist[m, None]
+        rel = (L.pdf(x[m], li[m], y, w[m]) / pdf[m] - 1).abs()  # float32 round trip of y: grazing
+        assert float((rel < 1e-2).float().mean()) > 0.999  # cylinder samples differ a little
+        if bool(is_sun.any()):
+            assert torch.allclose(L.pdf_sun(x[is_sun], w[is_sun]), pdf[is_sun], rtol=1e-4)
+        # cosine sampling: pdf cos/pi, so E = pi * mean(radiance of what the ray hits)
+        u2 = torch.rand(4 * K, 2, generator=g)
+        wc = S.local_to_world(S.cosine_hemisphere(u2), nrm.expand(4 * K, 3))
+        xc = q.expand(4 * K, 3).contiguous()
+        t, pid = G.intersect(sc.prims, xc, wc)
+        lid = L.prim_light[pid.clamp(min=0)]
+        hit = torch.nonzero((pid >= 0) & (lid >= 0)).squeeze(1)
+        le_c, sun_c = L.emitted(lid[hit], wc[hit])
+        # one-sided panels emit only from their front
+        front = torch.ones(len(hit), dtype=torch.bool)
+        quad = L.gkind[lid[hit]] == G.QUAD
+        front[quad] = (wc[hit][quad] * L.nq[lid[hit]][quad]).sum(1) < 0
+        e_cos = math.pi * float(torch.where(front[:, None], le_c + sun_c, 0.0).sum()) / (4 * K) / 3
+        assert e_nee == pytest.approx(e_cos, rel=0.06, abs=1e-3 * max(e_cos, e_nee))
+    if want_sun:  # most floor points cannot see the sun: it gets only the uniform share there
+        probs = L.select_probs(pts)
+        through = L.sun_through_window(pts)
+        share = 0.1 / L.n
+        assert torch.allclose(probs[~through, L.sun_index], torch.full_like(probs[~through, 0], share))
+        assert bool((L.kind == SUN).any())
+
+
+def test_lamps_are_1e2_to_1e4_times_the_walls():
+    """The brightest panel or lamp of each room (the sun and the sky apart) is 10^2-10^4 times the
+    median non-emissive pixel of a (coarse) render of the room."""
+    st = tiny_settings(size=(32, 64), probe_grid=None, spp=4)
+    ratios = []
+    for i in range(8):
+        sc = generate_room(np.random.default_rng([31, i])).build()
+        area = sc.lights.kind == AREA
+        if not bool(area.any()):
+            continue
+        r = trace(sc, st, seed=1)
+        med = float(r.image.mean(0)[r.emission[0] < 0.5].median())
+        ratios.append(float(sc.lights.radiance[area].mean(1).max()) / med)
+    assert len(ratios) >= 5
+    assert all(1e2 <= r <= 1e4 for r in ratios), ratios
+    # the drawn targets spread over the range, not one value
+    assert max(ratios) / min(ratios) > 2
+    assert SOURCE_RATIO[0] >= 2 and SOURCE_RATIO[1] <= 4
