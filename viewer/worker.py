@@ -53,7 +53,9 @@ class Loaded:
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)  # scalar layers' default ranges
 
 
-WORKER_NICE = 5  # niceness of the worker thread (a mild preference for the UI thread)
+# niceness of the worker thread: the UI thread, llvmpipe's threads and the X server come first (with
+# 5 the longest frame while loading under Xvfb was 79-154 ms, with 15 46-77 ms; job time the same)
+WORKER_NICE = 15
 SYNTH_SOURCE = "phyir synth"  # meta["source"] of phyir.synth's scenes: their layers are ground truth
 
 
