@@ -165,12 +165,12 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               repeats: int | None = None, threads: int | None = None,
               log: Callable[[str], None] = print) -> dict:
     """Run the model benchmark; write ``model.json`` and ``model.png``."""
-    cfg = dict(QUICK if quick else FULL)
-    if repeats is not None:
-        cfg["repeats"] = repeats
+    from phyir.bench_measure import torch_threads
+    from phyir.bench_report import target_config
+
+    cfg = target_config(FULL, QUICK, quick, repeats)
     if os.environ.get("PHYIR_BENCH_MODELS"):
         cfg["sizes"] = tuple(m.strip() for m in os.environ["PHYIR_BENCH_MODELS"].split(",") if m.strip())
-    from phyir.bench_measure import torch_threads
 
     with torch_threads(threads):
         return _run(Path(out_dir), cfg, quick, device, log)
@@ -248,7 +248,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.io import atomic_write
+    from phyir.bench_report import save_figure
 
     keys = ("depth_abs_rel", "albedo_mse", "relight_mean")
     fig, axes = plt.subplots(1, len(keys) + 1, figsize=(4.2 * (len(keys) + 1), 3.8))
@@ -272,6 +272,4 @@ def plot(result: dict, path: Path) -> None:
         if ax.lines:
             ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

@@ -121,12 +121,10 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               log: Callable[[str], None] = print) -> dict:
     """Time and memory of every part; writes ``modules.json`` and ``modules.png``."""
     from phyir.bench_measure import time_calls, torch_threads
-    from phyir.bench_report import save_target
+    from phyir.bench_report import save_target, target_config
     from phyir.nets.model import PhyIRModel, count_parameters
 
-    cfg = dict(QUICK if quick else FULL)
-    if repeats is not None:
-        cfg["repeats"] = repeats
+    cfg = target_config(FULL, QUICK, quick, repeats)
     with torch_threads(threads):
         H, W = cfg["size"]
         result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),

@@ -14,7 +14,6 @@ because the machine may be shared.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import statistics
@@ -511,7 +510,7 @@ def _plot_energy(curves: dict, roughs: tuple[float, ...], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.io import atomic_write
+    from phyir.bench_report import save_figure
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     for r in roughs:
@@ -526,9 +525,7 @@ def _plot_energy(curves: dict, roughs: tuple[float, ...], path: Path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = "cpu",
@@ -539,16 +536,11 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     ``threads`` sets torch's CPU threads for the run (on a shared machine one thread makes CPU time
     a fair measure of work: no thread waits on a descheduled sibling).
     """
-    cfg = dict(QUICK if quick else FULL)
-    if repeats is not None:
-        cfg["repeats"] = repeats
-    old_threads = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
-        return _run(out_dir, cfg, device, log)
-    finally:
-        torch.set_num_threads(old_threads)
+    from phyir.bench_measure import torch_threads
+    from phyir.bench_report import target_config
+
+    with torch_threads(threads):
+        return _run(out_dir, target_config(FULL, QUICK, quick, repeats), device, log)
 
 
 def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
@@ -571,20 +563,13 @@ def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str]
         log("render bench: memory at 256x512, 64 spp")
         result["memory"] = memory_use(log=log)
     result["config"]["loadavg_end"] = os.getloadavg()
+    from phyir.bench_report import save_target
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result["energy"] = energy_curves(out / "render_energy.png")
-    _write_json(out / "render.json", result)
-    plot(result, out / "render.png")
-    log(format_table(result))
+    save_target(out, "render", result, plot, format_table, log)
     return result
-
-
-def _write_json(path: Path, obj: dict) -> None:
-    from phyir.io import atomic_write
-
-    with atomic_write(path) as tmp:
-        Path(tmp).write_text(json.dumps(obj, indent=1))
 
 
 def format_table(result: dict) -> str:
@@ -658,7 +643,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.io import atomic_write
+    from phyir.bench_report import save_figure
 
     scenes = result["scenes"]
     cfg = result["config"]
@@ -683,9 +668,7 @@ def plot(result: dict, path: Path) -> None:
             ax.grid(True, which="both", alpha=0.3)
             ax.legend()
     fig.tight_layout()
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[str], None] = print) -> dict:
@@ -769,4 +752,6 @@ if __name__ == "__main__":
         res = prefiltered_cpu(*sys.argv[3:4])
     else:
         res = {k: sample_ratios(k) for k in (sys.argv[2:] or ["glossy"])}
-    _write_json(Path(sys.argv[1]), res)
+    from phyir.bench_report import write_json
+
+    write_json(Path(sys.argv[1]), res)

@@ -38,6 +38,14 @@ def write_json(path: Path, obj: object) -> None:
         Path(tmp).write_text(json.dumps(obj, indent=1))
 
 
+def target_config(full: dict, quick_config: dict, quick: bool, repeats: int | None) -> dict:
+    """A target's settings: a copy of its quick or full configuration, ``repeats`` overriding."""
+    cfg = dict(quick_config if quick else full)
+    if repeats is not None:
+        cfg["repeats"] = repeats
+    return cfg
+
+
 def save_target(out_dir: str | os.PathLike, name: str, result: dict, plot, format_table, log) -> None:
     """Write ``<name>.json`` and ``<name>.png`` (``plot(result, path)``) into ``out_dir`` and log the
     target's table."""

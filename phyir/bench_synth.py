@@ -318,7 +318,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.io import atomic_write
+    from phyir.bench_report import save_figure
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     for s in result["scenes"]:
@@ -339,6 +339,4 @@ def plot(result: dict, path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

@@ -188,7 +188,7 @@ def binary_auc(scores: Tensor, labels: Tensor) -> float:
     if n_pos == 0 or n_neg == 0:
         return math.nan
     # mid-ranks: tied scores share the mean of their ranks
-    uniq, inverse, counts = torch.unique(s, return_inverse=True, return_counts=True)
+    _, inverse, counts = torch.unique(s, return_inverse=True, return_counts=True)
     first = torch.cumsum(counts, 0) - counts
     mid = (first.double() + (counts.double() - 1) / 2)[inverse]
     return float((mid[y].sum() - n_pos * (n_pos - 1) / 2) / (n_pos * n_neg))

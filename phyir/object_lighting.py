@@ -232,6 +232,11 @@ def _fibonacci(n: int) -> Tensor:
     return torch.stack([r * torch.cos(phi), z, r * torch.sin(phi)], 1)
 
 
+def _halo(centre: Tensor, radius: float) -> Tensor:
+    """The first :data:`N_HALO` reach points: a shell of ``HALO`` radii around ``centre`` (float64)."""
+    return centre + HALO * radius * _fibonacci(N_HALO)
+
+
 def place_lights(lights: list[Light], centre: Tensor, surface: DepthSurface | None, radius: float = 0.0,
                  rays: int = 12, steps: int = 32) -> tuple[list[PlacedLight], Tensor]:
     """Put each light where its direction from ``centre`` meets the depth surface; with the object's
@@ -239,7 +244,7 @@ def place_lights(lights: list[Light], centre: Tensor, surface: DepthSurface | No
     light, where ``rays`` rays past the object's silhouette (away from the light) meet the scene.
     One march of the depth surface (``steps`` steps) for all rays."""
     c = centre.double().reshape(1, 3)
-    halo = c + HALO * radius * _fibonacci(N_HALO)
+    halo = _halo(c, radius)
     if not lights:
         return [], halo
     dirs = torch.stack([lt.direction.double() for lt in lights])  # [L, 3]
@@ -281,7 +286,7 @@ def reuse_lights(lights: list[Light], centre: Tensor, radius: float, previous: O
     if previous.reach is None or float((c - start.double()).norm()) > radius:
         return None
     if not previous.lights:
-        return ([], c + HALO * radius * _fibonacci(N_HALO), start) if not lights else None
+        return ([], _halo(c, radius), start) if not lights else None
     pos = torch.stack([pl.position.double() for pl in previous.lights])  # [L', 3]
     dist = (pos - c).norm(dim=1)
     seen = (pos - c) / dist.clamp(min=1e-9)[:, None]
@@ -293,7 +298,7 @@ def reuse_lights(lights: list[Light], centre: Tensor, radius: float, previous: O
             return None
         out.append(PlacedLight(lt, pos[k].float(), float(dist[k])))
     shift = c - previous.centre.double()
-    reach = torch.cat([c + HALO * radius * _fibonacci(N_HALO), previous.reach[N_HALO:].double() + shift])
+    reach = torch.cat([_halo(c, radius), previous.reach[N_HALO:].double() + shift])
     return out, reach, start
 
 

@@ -333,13 +333,14 @@ def _restrict_training(model: PhyIRModel, prefixes: tuple[str, ...]) -> None:
     """Freeze every parameter whose name starts with none of ``prefixes`` (no-op when empty)."""
     if not prefixes:
         return
-    names = [n for n, p in model.named_parameters() if p.requires_grad]
+    under = lambda name, prefix: name == prefix or name.startswith(prefix + ".")  # noqa: E731
+    trainable = [n for n, p in model.named_parameters() if p.requires_grad]
     for prefix in prefixes:
-        if not any(n == prefix or n.startswith(prefix + ".") for n in names):
+        if not any(under(n, prefix) for n in trainable):
             raise PhyIRError(f"train_only: {prefix!r} names no trainable parameter of this stage "
                              f"(e.g. gmnet.decoders.metallic)")
     for n, p in model.named_parameters():
-        if not any(n == q or n.startswith(q + ".") for q in prefixes):
+        if not any(under(n, q) for q in prefixes):
             p.requires_grad_(False)
 
 

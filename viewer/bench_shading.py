@@ -104,10 +104,10 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               log: Callable[[str], None] = print) -> dict:
     """Run the shading benchmark; write ``shading.json`` and ``shading.png``.  GL runs on a headless
     EGL context; ``device`` is where the torch reference renders."""
-    cfg = dict(QUICK if quick else FULL)
-    if repeats is not None:
-        cfg["repeats"] = repeats
     from phyir.bench_measure import torch_threads
+    from phyir.bench_report import target_config
+
+    cfg = target_config(FULL, QUICK, quick, repeats)
 
     with torch_threads(threads):
         return _run(Path(out_dir), cfg, device, log)
@@ -246,7 +246,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.io import atomic_write
+    from phyir.bench_report import save_figure
 
     mats = list(dict.fromkeys(r["material"] for r in result["rows"]))
     fig, axes = plt.subplots(1, len(mats), figsize=(5 * len(mats), 4.2), squeeze=False)
@@ -272,6 +272,4 @@ def plot(result: dict, path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

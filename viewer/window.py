@@ -43,6 +43,15 @@ def pyopengl_is_egl() -> bool:
                              type(sys.modules["OpenGL.platform"].PLATFORM).__name__ == "EGLPlatform")
 
 
+def _finish_without_gil(ctx: moderngl.Context) -> None:
+    """``glFinish`` through PyOpenGL, whose ctypes call drops the GIL while it waits (moderngl's
+    ``finish`` holds it and stalls the worker thread meanwhile)."""
+    from OpenGL import GL as gl
+
+    _ = ctx.error  # clear moderngl's pending GL errors: PyOpenGL would raise on them
+    gl.glFinish()
+
+
 class Headless:
     """A standalone EGL context (no window, no input)."""
 
@@ -98,10 +107,7 @@ class Headless:
         waiting) when it talks EGL: moderngl's finish() would hold the GIL and stall the worker
         thread meanwhile."""
         if pyopengl_is_egl():
-            from OpenGL import GL as gl
-
-            _ = self.ctx.error  # clear moderngl's pending GL errors: PyOpenGL would raise on them
-            gl.glFinish()
+            _finish_without_gil(self.ctx)
         else:
             self.ctx.finish()
 
@@ -203,10 +209,7 @@ class Window:
 
     def finish(self) -> None:
         """Wait for the GL work queued so far (PyOpenGL drops the GIL while waiting)."""
-        from OpenGL import GL as gl
-
-        _ = self.ctx.error  # clear moderngl's pending GL errors: PyOpenGL would raise on them
-        gl.glFinish()
+        _finish_without_gil(self.ctx)
 
     def set_title(self, title: str) -> None:
         self.glfw.set_window_title(self.window, title)
