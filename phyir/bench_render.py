@@ -205,9 +205,9 @@ class Reference:
 # the benchmark
 
 FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3, "memory": True,
-        "is_spp": (4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64}
+        "is_spp": (1, 2, 4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64}
 QUICK = {"size": (64, 128), "block": 2, "probe": (16, 32), "ref_spp": 512, "repeats": 2,
-         "is_spp": (4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16}
+         "is_spp": (1, 2, 4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16}
 
 
 def _loglog(xs: list[float], ys: list[float], y: float) -> float:
@@ -439,36 +439,59 @@ def _peak_rss_mb() -> float:
         return next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 1024
 
 
+MEMORY_CASES = (("importance", False), ("importance", True), ("prefiltered", False), ("prefiltered", True))
+
+
 def memory_use(H: int = 256, W: int = 512, spp: int = 64, log: Callable[[str], None] = print) -> list[dict]:
     """Peak resident memory added by one render at ``H x W`` (probe per 2x2 pixels), forward and
-    forward + backward (Linux: resets and reads /proc/self VmHWM; empty elsewhere)."""
-    import gc
+    forward + backward, each in a fresh child process with :data:`phyir.bench_measure.MALLOC_ENV`
+    (in this process, earlier targets' freed memory stays resident and hides the peaks); Linux only
+    (empty elsewhere)."""
+    import json
+    import subprocess
+    import sys
 
+    from phyir import bench_measure
+
+    if not bench_measure.cpu_peak_supported():
+        return []
+    env = {**os.environ, **bench_measure.MALLOC_ENV}
+    rows = []
+    for method, grad in MEMORY_CASES:
+        arg = json.dumps({"method": method, "grad": grad, "H": H, "W": W, "spp": spp,
+                          "threads": torch.get_num_threads()})
+        r = subprocess.run([sys.executable, "-m", "phyir.bench_render", "--memory", arg], env=env,
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"memory child failed ({r.returncode}):\n{r.stderr[-3000:]}")
+        rows.append(json.loads(r.stdout.strip().splitlines()[-1]))
+        log(f"  memory {method:<11} {'forward+backward' if grad else 'forward':<16} "
+            f"+{rows[-1]['extra_peak_mb']:.0f} MB (probes {rows[-1]['probes_mb']:.0f} MB)")
+    return rows
+
+
+def _memory_child(method: str, grad: bool, H: int, W: int, spp: int) -> dict:
+    """One case of :func:`memory_use`, measured in this (fresh) process."""
+    from phyir.bench_measure import peak_memory
     from phyir.render import render_scene
 
-    if not os.path.exists("/proc/self/clear_refs"):
-        return []
-    rows = []
-    for method, grad in (("importance", False), ("importance", True), ("prefiltered", False),
-                         ("prefiltered", True)):
-        sc = bench_scene("mixed", H, W)
-        if grad:
-            sc = sc.replace(normal=sc.normal.requires_grad_(True), albedo=sc.albedo.requires_grad_(True),
-                            probes=sc.probes.requires_grad_(True))
-        gc.collect()
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")  # reset the peak to the current resident size
-        base = _peak_rss_mb()
+    sc = bench_scene("mixed", H, W)
+    if grad:
+        sc = sc.replace(normal=sc.normal.requires_grad_(True), albedo=sc.albedo.requires_grad_(True),
+                        probes=sc.probes.requires_grad_(True))
+
+    def call() -> None:
         out = render_scene(sc, spp=spp, method=method)
         if grad:
             out["image"].sum().backward()
-        rows.append({"method": method, "grad": grad, "size": [H, W], "spp": spp,
-                     "extra_peak_mb": _peak_rss_mb() - base,
-                     "probes_mb": sc.probes.numel() * sc.probes.element_size() / 2**20})
-        log(f"  memory {method:<11} {'forward+backward' if grad else 'forward':<16} "
-            f"+{rows[-1]['extra_peak_mb']:.0f} MB (probes {rows[-1]['probes_mb']:.0f} MB)")
-        del sc, out
-    return rows
+
+    call()  # warm-up: one-time tables (DFG, operators, Sobol points) are not the render's working memory
+    for t in (sc.normal, sc.albedo, sc.probes):
+        t.grad = None
+    peak = peak_memory(call, "cpu")
+    probes_mb = sc.probes.numel() * sc.probes.element_size() / 2**20
+    return {"method": method, "grad": grad, "size": [H, W], "spp": spp,
+            "extra_peak_mb": peak["extra_peak_mb"], "probes_mb": probes_mb}
 
 
 def energy_curves(path: Path | None = None) -> dict:
@@ -674,7 +697,8 @@ def plot(result: dict, path: Path) -> None:
 def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[str], None] = print) -> dict:
     """Errors only (no timing): uniform against importance sampling at the benchmark's sample counts
     on one scene, and the importance-sampled spp that reaches each uniform error (layers image,
-    diffuse, specular).  Independent of machine load, so usable where the full benchmark can't run."""
+    diffuse, specular) and the prefiltered path's image error (its bias: the first row).
+    Independent of machine load, so usable where the full benchmark can't run."""
     from phyir.render import render_scene
 
     cfg = dict(FULL if cfg is None else cfg)
@@ -683,14 +707,20 @@ def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[
     mask = _shaded_mask(sc)
     ref = Reference(sc, cfg["ref_spp"], mask)
     rows = []
-    for method, spps in (("uniform", cfg["uniform_spp"]), ("importance", cfg["is_spp"])):
+    methods = (("prefiltered", (0,)), ("uniform", cfg["uniform_spp"]), ("importance", cfg["is_spp"]))
+    for method, spps in methods:
         for spp in spps:
-            rows.append({"method": method, "spp": spp, **ref.errors(render_scene(sc, spp=spp, method=method,
-                                                                                   seed=7))})
-            log(f"  {kind} {method:<10} spp {spp:>4}  err image {rows[-1]['err_image']:.4f} "
+            rows.append({"method": method, "spp": spp, **ref.errors(render_scene(sc, spp=max(spp, 1),
+                                                                                   method=method, seed=7))})
+            log(f"  {kind} {method:<11} spp {spp:>4}  err image {rows[-1]['err_image']:.4f} "
                 f"diffuse {rows[-1]['err_diffuse']:.4f} specular {rows[-1]['err_specular']:.4f}")
     isr = [r for r in rows if r["method"] == "importance"]
     ratios = []
+    pref = rows[0]["err_image"]
+    if math.isfinite(pref) and pref > 0:
+        need = _loglog([r["spp"] for r in isr], [r["err_image"] for r in isr], pref)
+        ratios.append({"layer": "image", "prefiltered_err": pref, "is_spp_same_err": need})
+        log(f"  prefiltered image error {pref:.4f} = importance {need:.1f} spp")
     for layer in ("image", "diffuse", "specular"):
         err = [r[f"err_{layer}"] for r in isr]
         if not all(math.isfinite(e) and e > 0 for e in err):
@@ -727,29 +757,42 @@ def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repe
     calls = {("prefiltered", 0): make("prefiltered", 0), **{("importance", n): make("importance", n)
                                                            for n in spps}}
     cpu: dict = {k: [] for k in calls}
+    wall: dict = {k: [] for k in calls}
     for fn in calls.values():
         fn()
     for _ in range(repeats):
         for k, fn in calls.items():
-            c0 = time.process_time()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
             cpu[k].append(time.process_time() - c0)
-    rows = [{"method": m, "spp": n, "cpu_median_s": statistics.median(v), "cpu_min_s": min(v)}
-            for (m, n), v in cpu.items()]
+            wall[k].append(time.perf_counter() - t0)
+    rows = [{"method": m, "spp": n, "cpu_median_s": statistics.median(v), "cpu_min_s": min(v),
+             "wall_median_s": statistics.median(wall[(m, n)])} for (m, n), v in cpu.items()]
     for r in rows:
         log(f"  {kind} {r['method']:<11} spp {r['spp']:>4}  CPU median {r['cpu_median_s'] * 1e3:.1f} ms, "
-            f"min {r['cpu_min_s'] * 1e3:.1f} ms")
-    return {"kind": kind, "rows": rows}
+            f"min {r['cpu_min_s'] * 1e3:.1f} ms, wall median {r['wall_median_s'] * 1e3:.1f} ms "
+            f"({torch.get_num_threads()} thread(s))")
+    return {"kind": kind, "threads": torch.get_num_threads(), "rows": rows}
 
 
 if __name__ == "__main__":
     # python -m phyir.bench_render OUT.json [glossy|metal ...]: errors only (sample_ratios)
-    # python -m phyir.bench_render OUT.json --prefiltered-cpu [kind]: prefiltered_cpu
+    # python -m phyir.bench_render OUT.json --prefiltered-cpu [kind [threads [spp ...]]]: prefiltered_cpu
     import sys
 
     torch.set_num_threads(1)
+    if sys.argv[1:2] == ["--memory"]:  # a child of memory_use
+        import json
+
+        case = json.loads(sys.argv[2])
+        torch.set_num_threads(case.pop("threads"))
+        print(json.dumps(_memory_child(**case)))
+        raise SystemExit(0)
     if sys.argv[2:3] == ["--prefiltered-cpu"]:
-        res = prefiltered_cpu(*sys.argv[3:4])
+        args = sys.argv[3:]
+        torch.set_num_threads(int(args[1]) if len(args) > 1 else 1)
+        spps = tuple(int(a) for a in args[2:]) or (64, 128)
+        res = prefiltered_cpu(*args[:1], spps=spps)
     else:
         res = {k: sample_ratios(k) for k in (sys.argv[2:] or ["glossy"])}
     from phyir.bench_report import write_json

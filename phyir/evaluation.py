@@ -219,7 +219,24 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
                 f"{rows['model/lnet']['probe_log_mse']:.4f} projection "
                 f"{rows['model/projection']['probe_log_mse']:.4f}")
     out = {k: m.result() for k, m in meters.items()}
+    if means is not None:
+        out[MARGIN_KEY] = margins(meters["model/lnet"], meters["dataset_means"])
     out["model/lnet"]["predict_seconds"] = sum(seconds) / len(seconds)
+    return out
+
+
+MARGIN_KEY = "margin/model/lnet-vs-dataset_means"
+
+
+def margins(model: M.MetricMeter, base: M.MetricMeter) -> dict[str, float]:
+    """:func:`phyir.metrics.paired_margin` of every metric both have, flattened to
+    ``<metric>.<margin|ci_low|ci_high|better|scenes>`` (so the results stay a dict of float dicts)."""
+    keys = [k for k in model.result() if k in base.result()]
+    out: dict[str, float] = {}
+    for k in keys:
+        m = M.paired_margin(model, base, k)
+        if m is not None:
+            out |= {f"{k}.{f}": v for f, v in m.items()}
     return out
 
 

@@ -326,21 +326,53 @@ def relight_errors(pred_probes: Tensor, gt_probes: Tensor, positions: Tensor, *,
 
 
 class MetricMeter:
-    """Running mean of metric dicts over scenes (each scene counts once; NaNs are skipped)."""
+    """Running mean of metric dicts over scenes (each scene counts once; NaNs are skipped).  The
+    per-scene dicts are kept (``scenes``) so that two methods can be compared scene by scene
+    (:func:`paired_margin`)."""
 
     def __init__(self) -> None:
-        self.sums: dict[str, float] = {}
-        self.counts: dict[str, int] = {}
+        self.scenes: list[dict[str, float]] = []
 
     def add(self, metrics: Mapping[str, float]) -> None:
-        for k, v in metrics.items():
-            if k == "count" or k.endswith(".count") or v is None or math.isnan(v):
-                continue
-            self.sums[k] = self.sums.get(k, 0.0) + float(v)
-            self.counts[k] = self.counts.get(k, 0) + 1
+        self.scenes.append({k: float(v) for k, v in metrics.items()
+                            if not (k == "count" or k.endswith(".count") or v is None or math.isnan(v))})
 
     def result(self) -> dict[str, float]:
-        return {k: self.sums[k] / self.counts[k] for k in self.sums}
+        sums: dict[str, float] = {}
+        counts: dict[str, int] = {}
+        for row in self.scenes:
+            for k, v in row.items():
+                sums[k] = sums.get(k, 0.0) + v
+                counts[k] = counts.get(k, 0) + 1
+        return {k: sums[k] / counts[k] for k in sums}
+
+
+# metrics where larger is better (the rest are errors)
+HIGHER_IS_BETTER = ("depth.delta1", "depth.delta2", "depth.delta3", "normal.pct_11.25", "normal.pct_22.5",
+                    "normal.pct_30", "metallic_auc")
+
+
+def paired_margin(model: MetricMeter, base: MetricMeter, key: str, *, resamples: int = 10_000,
+                  seed: int = 0) -> dict[str, float] | None:
+    """How ``model`` compares with ``base`` on ``key`` over the scenes both have it for: ``margin``
+    = mean(model) / mean(base) - 1, its 95 % bootstrap interval over scenes (``ci_low``,
+    ``ci_high``; scenes resampled with replacement, seeded) and ``better`` = the number of the
+    ``scenes`` where the model is better (larger for :data:`HIGHER_IS_BETTER`, else smaller).
+    None when no scene has both values or the baseline's mean is 0."""
+    pairs = [(a[key], b[key]) for a, b in zip(model.scenes, base.scenes, strict=True)
+             if key in a and key in b]
+    if not pairs:
+        return None
+    a, b = torch.tensor(pairs, dtype=torch.float64).T
+    if float(b.mean()) == 0.0:
+        return None
+    g = torch.Generator().manual_seed(seed)
+    idx = torch.randint(0, len(pairs), (resamples, len(pairs)), generator=g)
+    boot = a[idx].mean(1) / b[idx].mean(1) - 1
+    better = a > b if key in HIGHER_IS_BETTER else a < b
+    return {"margin": float(a.mean() / b.mean() - 1), "ci_low": float(boot.quantile(0.025)),
+            "ci_high": float(boot.quantile(0.975)), "better": float(better.sum()),
+            "scenes": float(len(pairs))}
 
 
 def prefixed(prefix: str, metrics: Mapping[str, float]) -> dict[str, float]:

@@ -28,6 +28,7 @@ import math
 from functools import lru_cache
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
@@ -119,21 +120,12 @@ def lookup_table(table: Tensor, n_dot_v: Tensor, roughness: Tensor) -> Tensor:
 
     ``n_dot_v`` and ``roughness`` broadcast to ``S``; differentiable in both.
     """
-    n = table.shape[-1]
     nv, r = torch.broadcast_tensors(n_dot_v, roughness)
-    x = (nv * n - 0.5).clamp(0, n - 1)
-    y = (r * n - 0.5).clamp(0, n - 1)
-    x0 = x.detach().floor().clamp(max=n - 2)
-    y0 = y.detach().floor().clamp(max=n - 2)
-    fx, fy = (x - x0).unsqueeze(-1), (y - y0).unsqueeze(-1)
-    x0, y0 = x0.long(), y0.long()
-    flat = table.flatten(1).T  # [n*n, C]
-
-    def at(yy: Tensor, xx: Tensor) -> Tensor:
-        return flat[yy * n + xx]
-
-    return ((at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx) * (1 - fy)
-            + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
+    # texel centres at (i + 1/2) / n, clamped to the edge texels: exactly grid_sample's
+    # align_corners=False with border padding (one fused op, ~7x faster than explicit taps)
+    grid = (torch.stack((nv, r), -1).to(table.dtype) * 2 - 1).reshape(1, 1, -1, 2)
+    out = F.grid_sample(table[None], grid, mode="bilinear", padding_mode="border", align_corners=False)
+    return out[0, :, 0].T.reshape(*nv.shape, table.shape[0])
 
 
 def specular_albedo(n_dot_v: Tensor, roughness: Tensor, f0: Tensor, table: Tensor | None = None) -> Tensor:
@@ -286,7 +278,8 @@ class Prefiltered:
         self.plan = _plan(h, w, self.alphas)
         self.need = tuple(range(-1, len(alphas))) if need is None else tuple(sorted(set(need)))
         op = _stacked_operator_cpu(h, w, self.alphas, self.need).to(device=env.device, dtype=env.dtype)
-        out = (op @ env.reshape(-1, h * w).T).reshape(op.shape[0], -1, 3)  # [rows, N, 3]
+        x = env.reshape(-1, h * w)
+        out = (op @ x.T).reshape(op.shape[0], x.shape[0] // 3, 3)  # [rows, N, 3] (rows may be 0)
         self.maps: list[Tensor | None] = []
         o = 0
         for i, (kind, hl, wl) in enumerate(self.plan):

@@ -30,10 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
-from phyir.scene import PanoScene, SceneError
-
-PROBE_OFFSET = 0.05  # metres along the normal from the surface to a probe (docs/conventions.md)
-
+from phyir.scene import PROBE_OFFSET, PanoScene, SceneError
 
 # ---------------------------------------------------------------------------------------------
 # textures: equirect images padded by one column on each side so grid_sample wraps in longitude

@@ -14,17 +14,19 @@ Methods
     Monte Carlo, eq. 6 of the supplement, plus environment sampling: cosine-weighted, GGX
     half-vector and environment samples (∝ probe radiance x clamped cosine, per pixel, continuous:
     see :class:`_EnvSampler`) in the ratio :data:`SPLIT` (0 : 1 : 1) for pixels with a diffuse lobe,
-    :data:`SPEC_SPLIT` (1 : 1 : 0) for metals.  The specular lobe combines all samples with the
-    balance heuristic of multiple importance sampling (``1 / (n_d p_d + n_s p_s + n_e p_e)``); the
-    diffuse lobe takes the environment samples alone (``1 / (n_e p_e)``), the other strategies only
-    where p_e = 0 (see :func:`_mc_chunk`): unbiased for both lobes.  Metals keep the cosine
-    samples: they cover the GGX lobe's tails, where
+    :data:`SPEC_SPLIT` (1 : 1 : 0) for metals; what the rounding leaves goes to the class's best
+    single strategy (:data:`FIRST`), so 1 spp is one environment sample (GGX on metals).  The
+    specular lobe combines all samples with the balance heuristic of multiple importance sampling
+    (``1 / (n_d p_d + n_s p_s + n_e p_e)``); the diffuse lobe takes the environment samples alone
+    (``1 / (n_e p_e)``), the other strategies only where p_e = 0 (see :func:`_mc_chunk`): unbiased
+    for both lobes.  Metals keep the cosine samples: they cover the GGX lobe's tails, where
     D-proportional half-vector sampling at grazing views has large weights (measured: half/half
     beats 1/8-1/4 cosine and GGX only on metals at R = 0.3-0.5).
 ``"uniform"``
     ``spp`` directions uniform on the hemisphere (the baseline of the benchmark).
 ``"prefiltered"``
-    Split sum, see :mod:`phyir.prefilter`: no samples, biased (measured in docs/rendering.md).
+    Split sum, see :mod:`phyir.prefilter`, looked up in a direction between the mirror direction and
+    the normal (:func:`_dominant_direction`): no samples, biased (measured in docs/rendering.md).
 
 Samples come from one scrambled Sobol (or Hammersley, or iid ``sampler="random"``) point set per
 lobe, rotated per pixel by seeded Cranley-Patterson shifts that depend on the pixel's position in
@@ -91,6 +93,14 @@ ROUGH_ALL_COSINE = False
 SPLIT = (0, 1, 1)
 SPEC_SPLIT = (1, 1, 0)
 ROUGH_SPLIT = (1, 0, 1)
+# where the samples the split rounds away go (0 cosine, 1 GGX, 2 environment): at 1 spp a pixel
+# takes one sample of this strategy, at odd spp one more.  Diffuse lobes: the environment, which
+# follows radiance x cosine; metals: GGX.
+FIRST = {"std": 2, "spec": 1, "rough": 2}
+# prefiltered path: fraction of Frostbite's dominant-direction shift applied to the look-up
+# direction (see _dominant_direction; 0.3-0.5 measured best on the benchmark scenes, 1 over-bends;
+# docs/rendering.md: a second draw of the scenes where it does not help the glossy one)
+DOMINANT_SHIFT = 0.3
 CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
 _POLE_EPS = 1e-6
 
@@ -138,14 +148,11 @@ def _unit_uv(d: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: Tensor | None,
-              texel_major: int = 0, channels_first: bool = False,
               uv: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """Radiance ``[p, S, 3]`` in directions ``d [p, S, 3]`` of pixels with probes ``index/weight [p, K]``.
 
-    ``texels`` is probe-major channels-last ``[N*h*w, 3]``, texel-major ``[h*w*N, 3]`` when
-    ``texel_major`` = N, or the probes themselves ``[N, 3, h, w]`` when ``channels_first``.
-    ``uv`` (from :func:`_unit_uv`, ``[p, S]`` each) replaces ``d`` when several maps are read in the
-    same directions.
+    ``texels`` is probe-major channels-last ``[N*h*w, 3]`` (:func:`_texels`).  ``uv`` (from
+    :func:`_unit_uv`, ``[p, S]`` each) replaces ``d`` when already known.
     """
     if uv is None:
         u, v = pano.dir_to_uv(_safe_dirs(d) if d.requires_grad else d, h, w, dim=-1)
@@ -154,13 +161,8 @@ def _radiance(texels: Tensor, h: int, w: int, index: Tensor, weight: Tensor, d: 
     p, s = u.shape[:2]
     k = index.shape[1]
     tidx, twgt = pano.bilinear_taps(u, v, h, w)  # [p, S, 4]
-    ps, ts = (1, texel_major) if texel_major else (h * w * (3 if channels_first else 1), 1)
-    idx = (index[:, None, :, None] * ps + tidx[:, :, None, :] * ts).reshape(p * s, k * 4)
+    idx = (index[:, None, :, None] * (h * w) + tidx[:, :, None, :]).reshape(p * s, k * 4)
     wgt = (weight[:, None, :, None] * twgt[:, :, None, :]).reshape(p * s, k * 4)
-    if channels_first:  # one bag per channel over the flat probe values
-        idx = (idx[:, None, :] + (torch.arange(3, device=idx.device) * (h * w))[None, :, None])
-        wgt = wgt[:, None, :].expand(-1, 3, -1)
-        return _mix(texels.reshape(-1, 1), idx.reshape(-1, k * 4), wgt.reshape(-1, k * 4)).reshape(p, s, 3)
     return _mix(texels, idx, wgt).reshape(p, s, 3)
 
 
@@ -444,13 +446,15 @@ def _select(t: Tensor, idx: Tensor) -> Tensor:
     return t.index_select(0, idx)
 
 
-def _strategy_counts(spp: int, split: tuple[int, int, int]) -> tuple[int, int, int]:
-    """(cosine, GGX, environment) sample counts: ``spp`` shared in the ratio ``split``, rounding the
-    GGX and environment shares down (the cosine strategy, which covers the whole hemisphere, gets
-    the rest)."""
+def _strategy_counts(spp: int, split: tuple[int, int, int], first: int) -> tuple[int, int, int]:
+    """(cosine, GGX, environment) sample counts: ``spp`` shared in the ratio ``split``, every share
+    rounded down, the rest to strategy ``first`` (0, 1, 2: the class's best single strategy, so that
+    1-2 spp still sample what matters, e.g. one environment sample for a diffuse lobe).  Every
+    strategy ``first`` may be alone reaches the whole hemisphere: unbiased at any ``spp``."""
     tot = sum(split)
-    n_s, n_e = spp * split[1] // tot, spp * split[2] // tot
-    return spp - n_s - n_e, n_s, n_e
+    counts = [spp * s // tot for s in split]
+    counts[first] += spp - sum(counts)
+    return counts[0], counts[1], counts[2]
 
 
 def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, sampler: str,
@@ -465,10 +469,10 @@ def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, s
     if method == "uniform":
         plan = {"uniform": (spp, 0, 0, True)}
     else:
-        rough = _strategy_counts(spp if ROUGH_ALL_COSINE else n_half, ROUGH_SPLIT)
-        plan = {"std": (*_strategy_counts(spp, SPLIT), True),
-                "spec": (*_strategy_counts(spp, SPEC_SPLIT), True), "rough": (*rough, True),
-                "mirror_d": (*_strategy_counts(n_half, ROUGH_SPLIT), False)}
+        rough = _strategy_counts(spp if ROUGH_ALL_COSINE else n_half, ROUGH_SPLIT, FIRST["rough"])
+        plan = {"std": (*_strategy_counts(spp, SPLIT, FIRST["std"]), True),
+                "spec": (*_strategy_counts(spp, SPEC_SPLIT, FIRST["spec"]), True), "rough": (*rough, True),
+                "mirror_d": (*_strategy_counts(n_half, ROUGH_SPLIT, FIRST["rough"]), False)}
     uses_env = any(cnt[2] and name in classes and classes[name].numel() for name, cnt in plan.items())
     env = _env_sampler(light.probes) if uses_env else None
     shifts = None
@@ -547,10 +551,51 @@ def _sh_radiance(sh: Tensor, index: Tensor, weight: Tensor, d: Tensor) -> Tensor
     return torch.bmm(c.reshape(len(y), 3, -1), y[:, :, None])[..., 0]
 
 
+def _dominant_direction(n: Tensor, r: Tensor, alpha: Tensor) -> Tensor:
+    """The split sum's look-up direction: the mirror direction ``r`` bent toward the normal by
+    :data:`DOMINANT_SHIFT` x the shift of Frostbite's "dominant direction" (Lagarde & de Rousiers
+    2014, lerp(n, r, s (sqrt(s) + alpha)) with s = 1 - alpha): the lobe of a rough surface peaks
+    off the mirror direction, toward n.  ``alpha [p, 1]``; identity for a mirror."""
+    s = 1 - alpha
+    f = 1 - DOMINANT_SHIFT * (1 - s.pow(1.5) - s * alpha)  # pow: a finite gradient at s = 0
+    return F.normalize(torch.lerp(n, r, f), dim=-1)
+
+
+def _lookup(table: Tensor, h: int, w: int, index: Tensor, weight: Tensor, uv: tuple[Tensor, Tensor],
+            scale: Tensor, planes: bool = False) -> Tensor:
+    """``scale x`` the bilinear look-up ``[p, 3]`` at ``uv`` (:func:`_unit_uv`, ``[p]`` each) of the
+    pixels' probe mixtures ``index/weight [p, K]`` in one equirect level ``h x w``.
+
+    ``table`` is texel-major channels-last ``[h*w, N, 3]`` (a prefiltered level) or, with
+    ``planes``, the probes ``[N, 3, h, w]``, read through a strided view whose rows are a texel's
+    three channel planes (no channels-last copy of the probes, which would cost more than every
+    look-up).  Either way one weighted bag of 4 probes x 4 taps per pixel.
+    """
+    tidx, twgt = pano.bilinear_taps(uv[0] * w, uv[1] * h, h, w)  # [p, 4]
+    p, N = tidx.shape[0], table.shape[0] if planes else table.shape[1]
+    ind = index.to(torch.int32) if table.numel() < 2**31 else index
+    tidx = tidx.to(ind.dtype)
+    if planes:
+        idx = (ind * (3 * h * w))[:, :, None] + tidx[:, None, :]
+    else:
+        idx = ind[:, :, None] + (tidx * N)[:, None, :]
+    idx = idx.reshape(p, -1)
+    wgt = ((weight * scale[:, None])[:, :, None] * twgt[:, None, :]).reshape(p, -1)
+    if not planes:
+        return _mix(table.reshape(-1, 3), idx, wgt)
+    if torch.is_grad_enabled() and table.requires_grad:  # one bag per channel plane
+        flat = table.reshape(-1, 1)
+        return torch.cat([_mix(flat, idx + c * (h * w), wgt) for c in range(3)], 1)
+    # row i of this (overlapping) view holds (i, i + h w, i + 2 h w): a texel's three channel planes
+    return _mix(table.reshape(-1).as_strided((table.numel() - 2 * h * w, 3), (1, h * w)), idx, wgt)
+
+
 def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     P = px.n.shape[0]
     dev, dt = px.n.device, px.n.dtype
     idx = (~px.skip).nonzero()[:, 0]
+    if idx.numel() == 0:  # nothing to shade (all invalid, back-facing or emissive)
+        return _assemble(P, [], [], [], dev, dt)
     sel = (lambda t: t) if idx.numel() == P else (lambda t: _select(t, idx))  # noqa: E731
     n, v, rough, base, metal = (sel(t) for t in (px.n, px.v, px.rough, px.base, px.metal))
     index, weight = sel(light.index), sel(light.weight)
@@ -566,20 +611,19 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     N = light.probes.shape[0]
     sh = None if pf.sh is None else pf.sh.permute(1, 2, 0).reshape(N, -1)  # [N, 3*K]
     nv = (n * v).sum(-1)
-    r = F.normalize(reflect(v, n), dim=-1)
+    r = _dominant_direction(n, reflect(v, n), alpha_from_roughness(rough))  # unit n, v: unit r
     ru, rv = _unit_uv(r)  # one direction -> texel mapping for every level
 
-    def look(level: int, rows: Tensor) -> Tensor:
+    def look(level: int, rows: Tensor | None) -> Tensor:
         kind, hl, wl = pf.plan[level]
-        full = rows.numel() == r.shape[0]
-        ii, ww = (index, weight) if full else (index[rows], weight[rows])
+        ii, ww = (index, weight) if rows is None else (index[rows], weight[rows])
+        scale = level_w[level] if rows is None else level_w[level][rows]
         if kind == "sh":
-            return _sh_radiance(sh, ii, ww, r if full else r[rows])
-        uv = (ru[:, None], rv[:, None]) if full else (ru[rows, None], rv[rows, None])
+            return scale[:, None] * _sh_radiance(sh, ii, ww, r if rows is None else r[rows])
+        uv = (ru, rv) if rows is None else (ru[rows], rv[rows])
         if kind == "probe":
-            return _radiance(light.probes, hl, wl, ii, ww, None, channels_first=True, uv=uv)[:, 0]
-        t = pf.maps[level]
-        return _radiance(t.reshape(-1, 3), hl, wl, ii, ww, None, texel_major=N, uv=uv)[:, 0]
+            return _lookup(light.probes, hl, wl, ii, ww, uv, scale, planes=True)
+        return _lookup(pf.maps[level], hl, wl, ii, ww, uv, scale)
 
     diffuse = torch.zeros_like(rho)
     if lit.numel():
@@ -588,10 +632,10 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     parts_i, parts_v = [], []
     for lvl, r_ in enumerate(rows):
         if r_.numel() == pf_rad.shape[0]:  # every pixel reads this level: no scatter
-            pf_rad = pf_rad + level_w[lvl][:, None] * look(lvl, r_)
+            pf_rad = pf_rad + look(lvl, None)
         elif r_.numel():
             parts_i.append(r_)
-            parts_v.append(level_w[lvl][r_, None] * look(lvl, r_))
+            parts_v.append(look(lvl, r_))
     if parts_i:
         pf_rad = pf_rad.index_add(0, torch.cat(parts_i), torch.cat(parts_v))
     spec = prefilter.specular_albedo(nv, rough[:, 0], f0_from_material(base, metal)) * pf_rad
@@ -646,14 +690,14 @@ def _pixels(normal: Tensor, view: Tensor, base_color: Tensor, roughness: Tensor,
     base, rough, metal = (_flat(x.to(dt), B, c) for x, c in ((base_color, 3), (roughness, 1), (metallic, 1)))
     with torch.no_grad():
         norm = torch.linalg.vector_norm(n, dim=-1)
-        finite = torch.stack([torch.isfinite(x).all(-1) for x in (n, v, base, rough, metal)]).all(0)
+        finite = torch.isfinite(torch.cat((n, v, base, rough, metal), -1)).all(-1)
         skip = ~finite | (norm < 1e-6)
-    n = F.normalize(torch.where(skip[:, None], torch.zeros_like(n), n), dim=-1)
+    n = F.normalize(torch.where(skip[:, None], 0.0, n), dim=-1)
     with torch.no_grad():
         skip = skip | ((n * v).sum(-1) <= 0)
         if extra_skip is not None:
             skip = skip | extra_skip
-    clean = lambda x: torch.where(skip[:, None], torch.zeros_like(x), x)  # noqa: E731
+    clean = lambda x: torch.where(skip[:, None], 0.0, x)  # noqa: E731
     return _Pixels(clean(n), v, clean(base), clean(rough), clean(metal), skip, n.shape[0] // B)
 
 

@@ -11,6 +11,10 @@ from torch import Tensor
 
 from phyir.errors import PhyIRError
 
+# metres along the normal from the surface point seen through a block's centre to its probe
+# (docs/conventions.md): the generator, projection lighting and the viewer all place probes so
+PROBE_OFFSET = 0.05
+
 # name -> channel count of the per-pixel layers, in file/display order
 PIXEL_LAYERS: dict[str, int] = {
     "image": 3,

@@ -127,3 +127,18 @@ def test_shading_quick(tmp_path, ctx):
     assert rows[("diffuse", "ggx 128")]["err"] < 0.05
     assert all(r["call_ms"] > 0 and r["frame_ms"] >= 0 for r in doc["rows"])
     assert bench_shading.key_numbers(res)
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux peak-RSS reset")
+def test_render_memory_is_measured_in_fresh_processes():
+    """Each case runs in its own child, so a case measured after a bigger one is not hidden by the
+    memory that one freed (in one process, prefiltered-forward after importance-backward read ~0 MB),
+    and the peaks order as the algorithms do."""
+    from phyir.bench_render import memory_use
+
+    rows = {(r["method"], r["grad"]): r for r in memory_use(64, 128, 4, log=lambda s: None)}
+    assert len(rows) == 4 and all(r["probes_mb"] == pytest.approx(12.0) for r in rows.values())
+    for method in ("importance", "prefiltered"):
+        fwd, both = rows[(method, False)]["extra_peak_mb"], rows[(method, True)]["extra_peak_mb"]
+        assert 0 < fwd < both  # the backward pass keeps the forward's saved tensors and adds gradients
+    assert rows[("prefiltered", False)]["extra_peak_mb"] < rows[("importance", False)]["extra_peak_mb"]

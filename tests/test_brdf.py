@@ -67,7 +67,9 @@ def test_specular_reciprocity(v, l, b, r, m):
             torch.tensor([m], dtype=torch.float64))
     _, f1 = brdf.brdf_vectors(n, v, l, *mats, dim=-1)
     _, f2 = brdf.brdf_vectors(n, l, v, *mats, dim=-1)
-    torch.testing.assert_close(f1, f2, rtol=1e-9, atol=1e-12)
+    # float64 rounding of a cosine is amplified by ~1/(n.v) at grazing angles (hypothesis found
+    # 2.4e-8 at n.v ~ 2e-8); a real asymmetry (a G1 or Fresnel term wrong for one side) is ~1e-2
+    torch.testing.assert_close(f1, f2, rtol=1e-6, atol=1e-12)
 
 
 @settings(max_examples=300, deadline=None)

@@ -158,6 +158,44 @@ def test_meter_and_markdown():
     assert table.splitlines() == ["| method | a | b |", "| --- | ---: | ---: |", "| model | 0.123 | – |"]
 
 
+def test_paired_margin_counts_scenes_and_brackets_the_margin():
+    model, base = M.MetricMeter(), M.MetricMeter()
+    for a, b, auc in ((1.0, 2.0, 0.9), (2.0, 2.0, 0.4), (3.0, 4.0, 0.8)):
+        model.add({"metallic_mse": a, "metallic_auc": auc})
+        base.add({"metallic_mse": b, "metallic_auc": 0.5})
+    r = M.paired_margin(model, base, "metallic_mse")
+    # a tie is not better
+    assert r["margin"] == pytest.approx(6 / 8 - 1) and r["better"] == 2 and r["scenes"] == 3
+    assert r["ci_low"] <= r["margin"] <= r["ci_high"]
+    assert M.paired_margin(model, base, "metallic_auc")["better"] == 2  # larger AUC is better
+    assert M.paired_margin(model, base, "depth.mae") is None
+
+
+def test_paired_margin_interval_separates_a_consistent_small_gain_from_noise():
+    g = torch.Generator().manual_seed(5)
+    err = 1 + torch.rand(40, generator=g)
+    steady, noisy, base = M.MetricMeter(), M.MetricMeter(), M.MetricMeter()
+    for e, n in zip(err.tolist(), torch.randn(40, generator=g).tolist(), strict=True):
+        base.add({"x": e})
+        steady.add({"x": 0.99 * e})  # 1 % better on every scene
+        noisy.add({"x": e * (1 + 0.2 * n)})  # no gain, scene-to-scene noise
+    r = M.paired_margin(steady, base, "x")
+    assert r["better"] == 40 and r["ci_high"] < 0 and r["margin"] == pytest.approx(-0.01)
+    q = M.paired_margin(noisy, base, "x")
+    assert q["ci_low"] < 0 < q["ci_high"]
+
+
+def test_eval_markdown_lists_margins_apart_from_the_methods():
+    from phyir.commands.eval import markdown
+
+    margin = {"margin": -0.0025, "ci_low": -0.005, "ci_high": -0.0002, "better": 28.0, "scenes": 37.0}
+    results = {"model/lnet": {"metallic_mse": 0.007}, "dataset_means": {"metallic_mse": 0.00705},
+               "margin/model/lnet-vs-dataset_means": {f"metallic_mse.{k}": v for k, v in margin.items()}}
+    md = markdown(results)
+    assert "| metallic_mse | -0.25 % | -0.50 % … -0.02 % | 28 of 37 |" in md
+    assert "| margin/" not in md
+
+
 def test_binary_auc_matches_counting_pairs():
     """Against the definition: the share of (positive, negative) pairs ordered right, ties half."""
     g = torch.Generator().manual_seed(3)

@@ -223,6 +223,7 @@ def test_cli_eval_on_predictions_and_on_a_dataset(tmp_path, weights, capsys):
     text = md.read_text()
     for row in ("model/lnet", "model/projection", "projection_gt_geometry", "constant", "dataset_means"):
         assert f"| {row} |" in text
+    assert "**Margins per scene: model/lnet vs dataset_means**" in text and "of 2 |" in text
     assert cli(["eval", "--gt", str(tmp_path / "gt")]) == 2
 
 

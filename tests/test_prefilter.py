@@ -48,6 +48,28 @@ def test_lookup_table_hits_texel_centres_and_clamps():
     torch.testing.assert_close(out, torch.stack([t[:, 0, 0], t[:, 7, 7]]))
 
 
+def test_lookup_table_is_bilinear_between_texel_centres_with_its_gradient():
+    # an explicit bilinear interpolation (texel centres at (i + 1/2) / n, clamped) at random points
+    # inside and outside [0, 1], and the gradient in (n.v, R) by central differences
+    g = torch.Generator().manual_seed(3)
+    t = torch.rand(2, 8, 8, dtype=torch.float64, generator=g)
+    nv = torch.rand(200, dtype=torch.float64, generator=g) * 1.3 - 0.15
+    r = torch.rand(200, dtype=torch.float64, generator=g) * 1.3 - 0.15
+    x, y = (nv * 8 - 0.5).clamp(0, 7), (r * 8 - 0.5).clamp(0, 7)
+    x0, y0 = x.floor().clamp(max=6).long(), y.floor().clamp(max=6).long()
+    fx, fy = x - x0, y - y0
+    want = ((t[:, y0, x0] * (1 - fx) + t[:, y0, x0 + 1] * fx) * (1 - fy)
+            + (t[:, y0 + 1, x0] * (1 - fx) + t[:, y0 + 1, x0 + 1] * fx) * fy).T
+    torch.testing.assert_close(prefilter.lookup_table(t, nv, r), want, rtol=0, atol=1e-12)
+    nv_, r_ = nv.clone().requires_grad_(True), r.clone().requires_grad_(True)
+    gn, gr = torch.autograd.grad(prefilter.lookup_table(t, nv_, r_).sum(), (nv_, r_))
+    e = 1e-6
+    fd_n = (prefilter.lookup_table(t, nv + e, r) - prefilter.lookup_table(t, nv - e, r)).sum(-1) / (2 * e)
+    fd_r = (prefilter.lookup_table(t, nv, r + e) - prefilter.lookup_table(t, nv, r - e)).sum(-1) / (2 * e)
+    torch.testing.assert_close(gn, fd_n, rtol=0, atol=1e-5)
+    torch.testing.assert_close(gr, fd_r, rtol=0, atol=1e-5)
+
+
 def test_specular_albedo_is_f0_a_plus_b():
     t = prefilter.dfg_table()
     f0 = torch.tensor([[0.04, 0.5, 1.0]])

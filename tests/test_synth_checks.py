@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from phyir.synth.checks import consistency, rel_l1
+from phyir.synth.checks import consistency, consistency_summary, rel_l1
 from phyir.synth.dataset import generate_scene, tiny_settings
 
 TINY = tiny_settings(size=(32, 64), probe_grid=(8, 16), probe_size=(8, 16), spp=8)
@@ -18,6 +18,11 @@ def test_rendering_layer_reproduces_ground_truth():
     ratio = sum(r["brightness_ratio"] for r in res) / len(res)
     assert 0.92 < ratio < 1.08
     assert sum(r["all"] for r in res) / len(res) < 0.3
+    # the summary splits rooms by their sun, which the generator records in meta["source_radiance"]
+    summary = consistency_summary(res + [dict(res[0], sun=1.0, all=0.5)])
+    assert summary["all_sun"] == pytest.approx((0.5 + sum(r["all"] for r in res if r["sun"]))
+                                               / (1 + sum(r["sun"] for r in res)))
+    assert summary["rooms_sun"] + summary.get("rooms_no_sun", 0) == 3
 
 
 def _noise(spp: int) -> tuple[float, float]:
@@ -30,9 +35,11 @@ def _noise(spp: int) -> tuple[float, float]:
 
 
 def test_sampler_noise_is_small_and_shrinks_with_samples():
-    img4, probes4 = _noise(4)
+    # 1 vs 32 camera samples (each with TraceSettings.nee_samples light samples): beyond ~4 the
+    # tiny settings' coarse light map (16 gather rays) is the noise floor
+    img1, _ = _noise(1)
     img32, probes32 = _noise(32)
-    assert img32 < 0.75 * img4
+    assert img32 < 0.6 * img1
     assert img32 < 0.12 and probes32 < 0.3
 
 

@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def markdown(results: dict[str, dict[str, float]]) -> str:
     from phyir.metrics import markdown_table
 
+    margins = {m: r for m, r in results.items() if m.startswith("margin/")}
+    results = {m: r for m, r in results.items() if m not in margins}
     parts = []
     for title, keys in (("Depth", DEPTH), ("Normals (degrees, %)", NORMAL), ("Materials (MSE)", MATERIAL),
                         ("Lighting (log-space MSE)", LIGHT)):
@@ -49,7 +51,25 @@ def markdown(results: dict[str, dict[str, float]]) -> str:
     extra = {m: r for m, r in extra.items() if r}
     if extra:
         parts.append("**Time**\n\n" + markdown_table(extra, ["predict_seconds"], digits=3))
+    for name, r in margins.items():
+        parts.append(margin_table(name, r))
     return "\n".join(parts)
+
+
+def margin_table(name: str, r: dict[str, float]) -> str:
+    """One row per metric: the relative margin, its 95 % bootstrap interval, scenes where better."""
+    title = name.removeprefix("margin/").replace("-vs-", " vs ")
+    lines = [f"**Margins per scene: {title}** (model / baseline - 1; 95 % bootstrap interval over scenes)",
+             "", "| metric | margin | 95 % interval | scenes better |", "| --- | ---: | ---: | ---: |"]
+    def pct(x: float) -> str:  # two decimals for margins under 1 %
+        return f"{100 * x:+.{2 if abs(x) < 0.01 else 1}f} %"
+
+    for key in DEPTH + NORMAL + MATERIAL + LIGHT:
+        if f"{key}.margin" in r:
+            v = {f: r[f"{key}.{f}"] for f in ("margin", "ci_low", "ci_high", "better", "scenes")}
+            lines.append(f"| {key} | {pct(v['margin'])} | {pct(v['ci_low'])} … {pct(v['ci_high'])} | "
+                         f"{v['better']:.0f} of {v['scenes']:.0f} |")
+    return "\n".join(lines) + "\n"
 
 
 def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:

@@ -61,7 +61,27 @@ def consistency(scene: PanoScene, spp: int = 128) -> dict:
         res[name] = rel_l1(out, scene.image, m)
         res[name + "_err_share"] = float((err * m).sum()) / total
     res["edge_pixels"] = float(edge.float().mean())
+    res["sun"] = float(_has_sun(scene))
     return res
+
+
+def _has_sun(scene: PanoScene) -> bool:
+    """Whether the generator lit the room with a sun (``meta["source_radiance"]``, JSON)."""
+    src = scene.meta.get("source_radiance")
+    return bool(src) and float(json.loads(src).get("sun", 0.0)) > 0
+
+
+def consistency_summary(per: list[dict]) -> dict:
+    """Means over scenes of the main consistency figures, and of ``all`` over rooms with / without
+    a sun (``all_sun``, ``all_no_sun``; absent when no room is of that kind)."""
+    keys = ("all", "diffuse", "glossy", "brightness_ratio", "glossy_share", "edge", "edge_err_share",
+            "bright", "bright_err_share")
+    out = {k: sum(p[k] for p in per) / len(per) for k in keys}
+    for name, sun in (("sun", True), ("no_sun", False)):
+        rooms = [p["all"] for p in per if bool(p["sun"]) == sun]
+        if rooms:
+            out[f"all_{name}"], out[f"rooms_{name}"] = sum(rooms) / len(rooms), float(len(rooms))
+    return out
 
 
 def noise(seed: int, index: int, settings: TraceSettings) -> dict:
@@ -140,9 +160,7 @@ def check_folder(folder: str, count: int = 20, spp: int = 128) -> dict:
         per.append(c)
         print(f"{p.name}: consistency {c['all']:.4f} (diffuse {c['diffuse']:.4f}, glossy {c['glossy']:.4f}) "
               f"ratio {c['brightness_ratio']:.3f}", flush=True)
-    keys = ("all", "diffuse", "glossy", "brightness_ratio", "glossy_share", "edge", "edge_err_share",
-            "bright", "bright_err_share")
-    return {"consistency_mean": {k: sum(p[k] for p in per) / len(per) for k in keys}, "consistency": per}
+    return {"consistency_mean": consistency_summary(per), "consistency": per}
 
 
 def settings_for(size: tuple[int, int], spp: int = 16) -> TraceSettings:
@@ -163,7 +181,7 @@ def run_checks(scenes: int = 20, size=(128, 256), seed: int = 1000, noise_scenes
         per.append(c)
         print(f"scene {i}: consistency {c['all']:.4f} (diffuse {c['diffuse']:.4f}, glossy {c['glossy']:.4f}) "
               f"ratio {c['brightness_ratio']:.3f}", flush=True)
-    mean = {k: sum(p[k] for p in per) / len(per) for k in ("all", "diffuse", "glossy", "brightness_ratio")}
+    mean = consistency_summary(per)
     noi = []
     for i in range(noise_scenes):
         n = noise(seed, i, st)
@@ -197,6 +215,7 @@ def speed(size=(256, 512), probe_grid=(64, 128), probe_size=(16, 32), spp: int =
            "load_average": list(_loadavg())}
     if device == "cuda":
         out["peak_cuda_mb"] = torch.cuda.max_memory_allocated() / 2**20
+    out["render_stats"] = json.loads(s.meta["render_stats"])  # per-stage seconds (wall and CPU)
     out["room"] = s.meta["room"]
     return out
 

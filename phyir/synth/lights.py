@@ -8,8 +8,9 @@
 
 Next-event estimation picks one source per sample with probabilities proportional to
 power / distance^2 at the shading point (mixed with a uniform share so no source is starved) and
-samples it by area (quads, cylinders, portals), by the subtended cone (spheres) or by the sun's
-cone.  :meth:`Lights.pdf` gives the same densities for directions found by BSDF sampling (MIS).
+samples it in solid angle with a cosine warp (quads: panels and portals, given the receiver's
+normal), by area (cylinders), by the subtended cone (spheres) or by the sun's cone.
+:meth:`Lights.pdf` gives the same densities for directions found by BSDF sampling (MIS).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ AREA, PORTAL, SUN = 0, 1, 2
 # as the image (soft shadow edges, no sub-texel disc); sun/sunlit-floor radiance ~ 1e2-1e3
 SUN_RADIUS = math.radians(6.0)
 UNIFORM_SHARE = 0.1  # part of the light-selection probability spread uniformly
+COS_FLOOR = 0.01  # smallest corner weight of the cosine warp (pbrt-v4's), keeps the density > 0
 
 
 @dataclass
@@ -191,15 +193,39 @@ class Lights:
         return hit
 
     # -- sampling -----------------------------------------------------------------------------
-    def sample(self, x: Tensor, u: Tensor):
+    def quad_weights(self, x: Tensor, n: Tensor, li: Tensor) -> Tensor:
+        """Corner weights ``[N,4]`` of the bilinear warp of quad ``li`` seen from ``x`` with normal
+        ``n``: the receiver's cosine toward each corner (at least ``COS_FLOOR``; a zero normal gives
+        no cosine preference), times the sky's luminance there for windows.  Sampling a panel or
+        window uniformly in solid angle leaves the cosine and the sky gradient in the estimator
+        (a window seen from the floor spans cosines 0.2-0.9): warping by their bilinear fit over the
+        corners takes most of it out (Hart et al. 2020)."""
+        cd = _rect_corner_dirs(x, self.c[li], self.ex[li], self.ey[li], self.nq[li], self.h[li])
+        w = (cd * n[:, None]).sum(2).clamp(min=COS_FLOOR)
+        portal = self.kind[li] == PORTAL
+        if bool(portal.any()):
+            lum = self.sky(cd.reshape(-1, 3)).mean(1).reshape(-1, 4)
+            lum = lum / lum.amax(1, keepdim=True).clamp(min=1e-30)
+            w = torch.where(portal[:, None], w * lum.clamp(min=COS_FLOOR), w)
+        return w
+
+    def sample(self, x: Tensor, u: Tensor, n: Tensor | None = None, group: int = 1):
         """One light sample per point: ``(li, w, dist, le, pdf, is_sun)``.
 
         ``u [N,3]`` uniforms; ``pdf`` is the solid-angle density including the selection
         probability (0 where the sample is invalid, e.g. the back of a one-sided panel); ``le`` is
         the radiance the source sends toward ``x`` (sky or sun radiance for portals/the sun).
+        With the receivers' normals ``n``, quads are sampled by :meth:`quad_weights`' bilinear warp
+        of their spherical rectangle (pass the same ``n`` to :meth:`pdf`).  ``group``: the rows
+        come in runs of ``group`` with the same ``x`` and ``n`` (a pixel's samples), whose
+        selection probabilities and quad set-ups are then computed once per run.
         """
         N = len(x)
-        probs = self.select_probs(x)
+        if N % group:
+            raise ValueError(f"{N} rows do not come in groups of {group}")
+        probs = self.select_probs(x[::group])
+        if group > 1:
+            probs = probs.repeat_interleave(group, 0)
         cdf = probs.cumsum(1)
         li = torch.searchsorted(cdf, (u[:, 0:1] * cdf[:, -1:]).contiguous()).squeeze(1).clamp(max=self.n - 1)
         psel = probs.gather(1, li[:, None]).squeeze(1)
@@ -215,8 +241,22 @@ class Lights:
         m = torch.nonzero(gk == G.QUAD).squeeze(1)
         if m.numel():
             i = li[m]
+            a, b, pw = u1[m], u2[m], 1.0
+            frame = None
+            if group > 1:  # set-ups once per (run, light) pair
+                uk, inv = torch.unique((m // group) * self.n + i, return_inverse=True)
+                r, j = (uk // self.n) * group, uk % self.n
+                frame = tuple(t[inv] for t in _rect_frame(x[r], self.c[j], self.ex[j], self.ey[j],
+                                                          self.nq[j], self.h[j]))
+                wq = None if n is None else self.quad_weights(x[r], n[r], j)[inv]
+            elif n is not None:
+                wq = self.quad_weights(x[m], n[m], i)
+            if n is not None:
+                a, b = _bilinear_warp(a, b, wq)
+                pw = _bilinear_pdf(a, b, wq)
             w[m], dist[m], pdf[m] = _rect_sample(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i],
-                                                 self.h[i], u1[m], u2[m])
+                                                 self.h[i], a, b, frame)
+            pdf[m] = pdf[m] * pw
         # spheres: uniform in the subtended cone
         m = torch.nonzero(gk == G.SPH).squeeze(1)
         if m.numel():
@@ -245,8 +285,9 @@ class Lights:
         le = torch.where((kind == SUN)[:, None], self.radiance[li], le)
         return li, w, dist, le, pdf * psel, is_sun
 
-    def pdf(self, x: Tensor, li: Tensor, y: Tensor, w: Tensor) -> Tensor:
-        """Density of :meth:`sample` choosing direction ``w`` toward point ``y`` on light ``li``."""
+    def pdf(self, x: Tensor, li: Tensor, y: Tensor, w: Tensor, n: Tensor | None = None) -> Tensor:
+        """Density of :meth:`sample` (with the same normals ``n``) choosing direction ``w`` toward
+        point ``y`` on light ``li``."""
         psel = self.select_probs(x).gather(1, li[:, None]).squeeze(1)
         gk = self.gkind[li]
         out = torch.zeros(len(x), device=x.device)
@@ -257,6 +298,9 @@ class Lights:
             omega = _rect_solid_angle(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i])
             cos_l = -(w[m] * self.nq[i]).sum(1)
             out[m] = torch.where((cos_l > 0) & (omega > 0), 1.0 / omega.clamp(min=1e-30), 0.0)
+            if n is not None:
+                a, b = _rect_invert(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i], y[m])
+                out[m] = out[m] * _bilinear_pdf(a.float(), b.float(), self.quad_weights(x[m], n[m], i))
         m = torch.nonzero(gk == G.SPH).squeeze(1)
         if m.numel():
             i = li[m]
@@ -290,6 +334,13 @@ def _rect_frame(x, c, ex, ey, n, h):
     y0 = (d * ey).sum(1) - h[:, 1]
     x1, y1 = x0 + 2 * h[:, 0], y0 + 2 * h[:, 1]
     z = z0.clamp(max=-1e-9)
+    S, b0, b1, k = _sph_rect(x0, x1, y0, y1, z)
+    S = torch.where(z0 < -1e-9, S, 0.0)
+    return x0, x1, y0, y1, z, S, b0, b1, k
+
+
+def _sph_rect(x0, x1, y0, y1, z):
+    """Solid angle and Urena's constants (b0, b1, k) of the rectangle [x0,x1] x [y0,y1] at depth z < 0."""
     # normals of the spherical rectangle's edges (frame with z = +n so that z0 < 0)
     n0 = torch.stack((torch.zeros_like(z), z, -y0), 1)
     n1 = torch.stack((-z, torch.zeros_like(z), x1), 1)
@@ -300,17 +351,64 @@ def _rect_frame(x, c, ex, ey, n, h):
     g0, g1, g2, g3 = ac(n0, n1), ac(n1, n2), ac(n2, n3), ac(n3, n0)
     k = 2 * math.pi - g2 - g3
     S = (g0 + g1 - k).clamp(min=0)
-    S = torch.where(z0 < -1e-9, S, 0.0)
-    return x0, x1, y0, y1, z, S, n0[:, 2], n2[:, 2], k
+    return S, n0[:, 2], n2[:, 2], k
+
+
+def _rect_invert(x, c, ex, ey, n, h, y) -> tuple[Tensor, Tensor]:
+    """The inverse of :func:`_rect_sample`: the uniforms ``(u1, u2)`` that map to point ``y`` on the
+    quad (float64): u1 is the solid-angle fraction of the sub-rectangle left of ``y``, u2 the
+    fraction of the height-sine range along its column."""
+    x0, x1, y0, y1, z, S, _, _, _ = _rect_frame(x, c, ex, ey, n, h)
+    d = y.double() - x.double()
+    xu = (d * ex.double()).sum(1).clamp(min=x0, max=x1)
+    yv = (d * ey.double()).sum(1).clamp(min=y0, max=y1)
+    S_left = _sph_rect(x0, xu, y0, y1, z)[0]
+    u1 = (S_left / S.clamp(min=1e-30)).clamp(0, 1)
+    dd2 = xu * xu + z * z
+    h0, h1 = y0 / torch.sqrt(dd2 + y0 * y0), y1 / torch.sqrt(dd2 + y1 * y1)
+    hv = yv / torch.sqrt(dd2 + yv * yv)
+    u2 = ((hv - h0) / (h1 - h0).clamp(min=1e-30)).clamp(0, 1)
+    return u1, u2
+
+
+def _rect_corner_dirs(x, c, ex, ey, n, h) -> Tensor:
+    """Unit directions ``[N,4,3]`` from ``x`` to the quad's corners in the order of the unit square
+    of :func:`_rect_sample`: (x0,y0), (x1,y0), (x0,y1), (x1,y1)."""
+    d = c - x
+    z0 = (d * n).sum(1, keepdim=True)
+    xs = ((d * ex).sum(1, keepdim=True) - h[:, :1], (d * ex).sum(1, keepdim=True) + h[:, :1])
+    ys = ((d * ey).sum(1, keepdim=True) - h[:, 1:], (d * ey).sum(1, keepdim=True) + h[:, 1:])
+    v = torch.stack([xs[i] * ex + ys[j] * ey + z0 * n for j in (0, 1) for i in (0, 1)], 1)
+    return v / v.norm(dim=2, keepdim=True).clamp(min=1e-12)
+
+
+def _sample_linear(u: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """Inverse CDF of the density on [0,1] proportional to lerp(x, a, b) (a, b > 0)."""
+    x = u * (a + b) / (a + torch.sqrt(torch.lerp(a * a, b * b, u)))
+    return x.clamp(0, 1 - 1e-6)
+
+
+def _bilinear_warp(u1: Tensor, u2: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:
+    """Warp uniforms to the bilinear density with corner values ``w [N,4]`` (order of
+    :func:`_rect_corner_dirs`; Hart et al. 2020, as in pbrt-v4's spherical rectangles)."""
+    b = _sample_linear(u2, w[:, 0] + w[:, 1], w[:, 2] + w[:, 3])
+    a = _sample_linear(u1, torch.lerp(w[:, 0], w[:, 2], b), torch.lerp(w[:, 1], w[:, 3], b))
+    return a, b
+
+
+def _bilinear_pdf(a: Tensor, b: Tensor, w: Tensor) -> Tensor:
+    return 4 * ((1 - a) * (1 - b) * w[:, 0] + a * (1 - b) * w[:, 1] + (1 - a) * b * w[:, 2]
+                + a * b * w[:, 3]) / w.sum(1).clamp(min=1e-30)
 
 
 def _rect_solid_angle(x, c, ex, ey, n, h) -> Tensor:
     return _rect_frame(x, c, ex, ey, n, h)[5].float()
 
 
-def _rect_sample(x, c, ex, ey, n, h, u1, u2):
-    """Direction uniform in the solid angle of the quad (Urena et al. 2013): ``(w, dist, pdf)``."""
-    x0, x1, y0, y1, z0, S, b0, b1, k = _rect_frame(x, c, ex, ey, n, h)
+def _rect_sample(x, c, ex, ey, n, h, u1, u2, frame: tuple | None = None):
+    """Direction uniform in the solid angle of the quad (Urena et al. 2013): ``(w, dist, pdf)``;
+    ``frame``: :func:`_rect_frame` of these rows if already known."""
+    x0, x1, y0, y1, z0, S, b0, b1, k = _rect_frame(x, c, ex, ey, n, h) if frame is None else frame
     u1, u2 = u1.double(), u2.double()
     au = u1 * S + k
     fu = (torch.cos(au) * b0 - b1) / torch.sin(au)

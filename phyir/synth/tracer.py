@@ -5,8 +5,9 @@ Outputs, for a :class:`~phyir.synth.rooms.TraceScene` seen from the origin (came
 * exact G-buffers of the pixel-centre rays: radial depth, normal (facing the camera), base colour,
   roughness, metalness, emission mask;
 * the HDR image: emitted radiance of emitters; on every other pixel next-event estimation on the
-  sources with multiple importance sampling (power heuristic) against BSDF sampling, ``spp``
-  samples per pixel from a rotated Sobol set, plus indirect light;
+  sources (``nee_samples`` light samples per camera sample) with multiple importance sampling
+  (power heuristic) against BSDF sampling, ``spp`` samples per pixel from rotated Sobol sets, plus
+  indirect light;
 * a probe grid: probe (a, b) at the surface point seen through the centre of block (a, b), offset
   5 cm along its normal; each texel the mean incident radiance over its solid angle.
 
@@ -43,11 +44,11 @@ from torch import Tensor
 from phyir import brdf, prefilter
 from phyir import sampling as S
 from phyir.pano import bilinear_taps, dir_to_uv, directions, solid_angles, uv_to_dir
+from phyir.scene import PROBE_OFFSET
 from phyir.synth import geometry as G
 from phyir.synth.lights import PORTAL
 from phyir.synth.materials import evaluate
 
-PROBE_OFFSET = 0.05  # metres along the normal (docs/conventions.md)
 SPAWN = 5e-4  # ray origin offset from surfaces
 
 
@@ -57,10 +58,11 @@ class TraceSettings:
     probe_grid: tuple[int, int] | None = (64, 128)
     probe_size: tuple[int, int] = (16, 32)
     spp: int = 16  # camera samples per pixel
+    nee_samples: int = 4  # light samples per camera sample (first vertex only)
     texel: float = 0.1  # light-map texel size (metres), enlarged to stay under lm_max_texels
     lm_max_texels: int = 12000
     lm_light_samples: int = 32
-    lm_gather: int = 96
+    lm_gather: int = 128  # a power of two: a complete Sobol net per texel
     lm_iters: int = 8
     max_depth: int = 6
     rr_depth: int = 3
@@ -246,7 +248,7 @@ def build_lightmap(sc, st: TraceSettings, gen: torch.Generator) -> LightMap:
         nn = n[a:b].repeat_interleave(K, 0)
         xx = x[a:b].repeat_interleave(K, 0) + nn * SPAWN
         u = _stratified(b - a, K, 3, gen, dev)
-        li, w, dist, le, pdf, is_sun = sc.lights.sample(xx, u)
+        li, w, dist, le, pdf, is_sun = sc.lights.sample(xx, u, nn)
         cos = (w * nn).sum(1)
         ok = (pdf > 0) & (cos > 0)
         vis = visible(sc, xx, w, dist, is_sun, ok, li)
@@ -272,11 +274,12 @@ def build_lightmap(sc, st: TraceSettings, gen: torch.Generator) -> LightMap:
         rho = h.base * (1 - h.metal[:, None]) + brdf.f0_from_material(h.base, h.metal[:, None])
         idx, wt = lm.weights(h.pid, h.face, h.st)
         row = (m // Gn + a)
-        rows.append(row[:, None].expand(-1, 4).reshape(-1))
-        cols.append(idx.reshape(-1))
+        # int32 indices: the gather matrix is the largest array of a scene (~7M entries)
+        rows.append(row[:, None].expand(-1, 4).reshape(-1).int())
+        cols.append(idx.reshape(-1).int())
         vals.append((wt[..., None] * rho[:, None, :] / Gn).reshape(-1, 3))
-    rows = torch.cat(rows) if rows else torch.zeros(0, dtype=torch.long, device=dev)
-    cols = torch.cat(cols) if cols else torch.zeros(0, dtype=torch.long, device=dev)
+    rows = torch.cat(rows) if rows else torch.zeros(0, dtype=torch.int32, device=dev)
+    cols = torch.cat(cols) if cols else torch.zeros(0, dtype=torch.int32, device=dev)
     vals = torch.cat(vals) if vals else torch.zeros(0, 3, device=dev)
     e_ind = torch.zeros(T, 3, device=dev)
     for _ in range(st.lm_iters):
@@ -309,10 +312,13 @@ def visible(sc, x: Tensor, w: Tensor, dist: Tensor, is_sun: Tensor, ok: Tensor |
     return out
 
 
-def nee(sc, h: Hits, v: Tensor, u: Tensor, spec_only: bool, q_diffuse: Tensor | None) -> Tensor:
-    """One light sample per hit, MIS-weighted against the BSDF sampling used at that vertex."""
+def nee(sc, h: Hits, v: Tensor, u: Tensor, spec_only: bool, q_diffuse: Tensor | None,
+        count: int = 1, group: int = 1) -> Tensor:
+    """One light sample per hit, MIS-weighted against the BSDF sampling used at that vertex, which
+    takes ``count`` light samples per BSDF sample (average ``count`` such results); ``group``: see
+    :meth:`~phyir.synth.lights.Lights.sample`."""
     x = h.p + h.n * SPAWN
-    li, l, dist, le, pdf, is_sun = sc.lights.sample(x, u)
+    li, l, dist, le, pdf, is_sun = sc.lights.sample(x, u, h.n, group)
     nl = _cos(h.n, l).squeeze(1)
     ok = (pdf > 0) & (nl > 0) & (_cos(h.n, v).squeeze(1) > 0)
     vis = visible(sc, x, l, dist, is_sun, ok, li)
@@ -323,15 +329,17 @@ def nee(sc, h: Hits, v: Tensor, u: Tensor, spec_only: bool, q_diffuse: Tensor | 
         pb = p_spec
     else:
         pb = q_diffuse * nl.clamp(min=0) / math.pi + (1 - q_diffuse) * p_spec
-    wgt = S.power_heuristic(1, pdf, 1, pb)
+    wgt = S.power_heuristic(count, pdf, 1, pb)
     c = f * le * (nl.clamp(min=0) * wgt / pdf.clamp(min=1e-30))[:, None]
     return torch.where((ok & vis)[:, None], c, 0.0)
 
 
 def trace_paths(sc, lm: LightMap, x: Tensor, w: Tensor, beta: Tensor, beta_emit: Tensor,
-                pdf_prev: Tensor, st: TraceSettings, gen: torch.Generator) -> Tensor:
+                pdf_prev: Tensor, st: TraceSettings, gen: torch.Generator, n_prev: Tensor | None = None,
+                nee_count: int = 1) -> Tensor:
     """Radiance carried back along rays ``(x, w)``: ``beta_emit`` weighs sources hit first
-    (MIS against ``pdf_prev``), ``beta`` everything reflected.  The diffuse lobe of every vertex
+    (MIS against ``pdf_prev`` and ``nee_count`` light samples drawn at the vertex with normal
+    ``n_prev``, :func:`nee`), ``beta`` everything reflected.  The diffuse lobe of every vertex
     reads the light map; the specular lobe continues the path."""
     dev = x.device
     N = len(x)
@@ -347,11 +355,12 @@ def trace_paths(sc, lm: LightMap, x: Tensor, w: Tensor, beta: Tensor, beta_emit:
         if em.numel() and bool(beta_emit[em].any()):
             y = x[em] + t[em, None] * w[em]
             le, sun = sc.lights.emitted(li[em], w[em])
-            p_l = sc.lights.pdf(x[em], li[em], y, w[em])
+            p_l = sc.lights.pdf(x[em], li[em], y, w[em], None if n_prev is None else n_prev[em])
             p_s = sc.lights.pdf_sun(x[em], w[em])
             pp = pdf_prev[em]
-            wl = torch.where(pp > 0, S.power_heuristic(1, pp, 1, p_l), 1.0)
-            ws = torch.where(pp > 0, S.power_heuristic(1, pp, 1, p_s), 1.0)
+            k = nee_count if depth == 0 else 1
+            wl = torch.where(pp > 0, S.power_heuristic(1, pp, k, p_l), 1.0)
+            ws = torch.where(pp > 0, S.power_heuristic(1, pp, k, p_s), 1.0)
             L.index_add_(0, idx[em], beta_emit[em] * (le * wl[:, None] + sun * ws[:, None]))
         sm = torch.nonzero(hit & (li < 0)).squeeze(1)
         if sm.numel() == 0:
@@ -386,6 +395,7 @@ def trace_paths(sc, lm: LightMap, x: Tensor, w: Tensor, beta: Tensor, beta_emit:
         beta = beta * fs * torch.where(ok, nl / pdf.clamp(min=1e-30), 0.0)[:, None]
         a = torch.nonzero(ok & (beta.amax(1) > 0)).squeeze(1)
         x, w, beta, idx, pdf_prev = h.p[a] + h.n[a] * SPAWN, l[a], beta[a], idx[a], pdf[a]
+        n_prev = h.n[a]
         beta_emit = beta
     return L
 
@@ -413,19 +423,23 @@ def render_camera(sc, lm: LightMap, st: TraceSettings, seed: int, gen: torch.Gen
         image[em] = le + sun
     surf = torch.nonzero(~emissive).squeeze(1)
     shifts = S.rotation_shifts(H * W, 5, seed + 101, device=dev)
-    spp = st.spp
+    spp, K = st.spp, st.nee_samples
     for a in range(0, len(surf), max(1, st.pixel_batch // spp)):
         m = surf[a:a + max(1, st.pixel_batch // spp)]
         hb = Hits(*(getattr(h, f)[m] for f in ("p", "n", "face", "st", "pid", "base", "rough", "metal")))
         v = -d[m]
         acc = brdf.brdf_diffuse(hb.base, hb.metal[:, None]) * lm.lookup(hb, total=False)
         u = S.pixel_samples("sobol", len(m), spp, 5, seed, dev, shifts=shifts[m])  # [n,spp,5]
+        # K light samples per camera sample: one Sobol set of spp*K points per pixel in the light
+        # dimensions (K=1: dimensions 0-2 of u), consecutive points to one camera sample
+        u_l = S.pixel_samples("sobol", len(m), spp * K, 3, seed, dev, shifts=shifts[m, :3])
+        u_l = u_l.reshape(len(m), spp, K, 3)
         rep = lambda x: x.repeat_interleave(spp, 0)  # noqa: E731
         hr = Hits(*(rep(getattr(hb, f)) for f in ("p", "n", "face", "st", "pid", "base", "rough", "metal")))
         vr = rep(v)
         ur = u.reshape(-1, 5)
         qd = diffuse_prob(hr)
-        c = nee(sc, hr, vr, ur[:, :3], False, qd)
+        c = sum(nee(sc, hr, vr, u_l[:, :, k].reshape(-1, 3), False, qd, K, spp) for k in range(K)) / K
         # BSDF sample: lobe choice, then cosine or GGX direction
         first, u3 = S.select_lobe(ur[:, 3], qd)
         ud = torch.stack((u3, ur[:, 4]), 1)
@@ -439,7 +453,7 @@ def render_camera(sc, lm: LightMap, st: TraceSettings, seed: int, gen: torch.Gen
         scale = torch.where(ok, nl / pb.clamp(min=1e-30), 0.0)[:, None]
         beta_emit = (fd + fs) * scale
         beta = fs * scale
-        c = c + trace_paths(sc, lm, hr.p + hr.n * SPAWN, l, beta, beta_emit, pb, st, gen)
+        c = c + trace_paths(sc, lm, hr.p + hr.n * SPAWN, l, beta, beta_emit, pb, st, gen, hr.n, K)
         acc = acc + c.reshape(len(m), spp, 3).mean(1)
         image[m] = acc
     gbuf = dict(depth=t, normal=h.n, albedo=h.base, roughness=h.rough, metallic=h.metal,
