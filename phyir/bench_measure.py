@@ -128,6 +128,21 @@ def peak_memory(fn: Callable[[], object], device: str) -> dict[str, float]:
     return {"extra_peak_mb": peak - base, "total_peak_mb": peak}
 
 
+def measure_in_child(module: str, config: dict) -> dict:
+    """Run ``python -m <module> --memory <config as JSON>`` in a fresh process with
+    :data:`MALLOC_ENV` (its resident size then follows its live allocations, and nothing this
+    process freed hides its peaks) and return the JSON object on the last line it prints."""
+    import json
+    import sys
+
+    env = {**os.environ, **MALLOC_ENV}
+    r = subprocess.run([sys.executable, "-m", module, "--memory", json.dumps(config)], env=env,
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"memory child {module} failed ({r.returncode}):\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def _cpu_model() -> str:
     try:
         with open("/proc/cpuinfo") as f:

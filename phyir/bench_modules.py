@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -90,13 +89,7 @@ def memory(cfg: dict, device: str) -> dict:
         return _memory_here(cfg, device)
     if not bench_measure.cpu_peak_supported():
         return {}
-    env = {**os.environ, **bench_measure.MALLOC_ENV}
-    arg = json.dumps({**cfg, "threads": torch.get_num_threads()})
-    r = subprocess.run([sys.executable, "-m", "phyir.bench_modules", "--memory", arg], env=env,
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"memory child failed ({r.returncode}):\n{r.stderr[-3000:]}")
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    return bench_measure.measure_in_child("phyir.bench_modules", {**cfg, "threads": torch.get_num_threads()})
 
 
 def _memory_here(cfg: dict, device: str) -> dict:

@@ -434,11 +434,6 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
     return [{"variant": k, **v} for k, v in out.items()] + [{"summary": table}]
 
 
-def _peak_rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 1024
-
-
 MEMORY_CASES = (("importance", False), ("importance", True), ("prefiltered", False), ("prefiltered", True))
 
 
@@ -447,24 +442,14 @@ def memory_use(H: int = 256, W: int = 512, spp: int = 64, log: Callable[[str], N
     forward + backward, each in a fresh child process with :data:`phyir.bench_measure.MALLOC_ENV`
     (in this process, earlier targets' freed memory stays resident and hides the peaks); Linux only
     (empty elsewhere)."""
-    import json
-    import subprocess
-    import sys
-
     from phyir import bench_measure
 
     if not bench_measure.cpu_peak_supported():
         return []
-    env = {**os.environ, **bench_measure.MALLOC_ENV}
     rows = []
     for method, grad in MEMORY_CASES:
-        arg = json.dumps({"method": method, "grad": grad, "H": H, "W": W, "spp": spp,
-                          "threads": torch.get_num_threads()})
-        r = subprocess.run([sys.executable, "-m", "phyir.bench_render", "--memory", arg], env=env,
-                           capture_output=True, text=True)
-        if r.returncode != 0:
-            raise RuntimeError(f"memory child failed ({r.returncode}):\n{r.stderr[-3000:]}")
-        rows.append(json.loads(r.stdout.strip().splitlines()[-1]))
+        rows.append(bench_measure.measure_in_child("phyir.bench_render", {
+            "method": method, "grad": grad, "H": H, "W": W, "spp": spp, "threads": torch.get_num_threads()}))
         log(f"  memory {method:<11} {'forward+backward' if grad else 'forward':<16} "
             f"+{rows[-1]['extra_peak_mb']:.0f} MB (probes {rows[-1]['probes_mb']:.0f} MB)")
     return rows

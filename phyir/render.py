@@ -79,6 +79,7 @@ from phyir.sampling import (
     pixel_samples,
     reflect,
     rotation_shifts,
+    sample_linear,
     uniform_hemisphere,
 )
 from phyir.scene import PanoScene, SceneError
@@ -271,13 +272,6 @@ def _invert(cdf: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
     return i, frac.clamp(0, 1)
 
 
-def _linear_inverse(a: Tensor, b: Tensor, xi: Tensor) -> Tensor:
-    """t in [0, 1] with CDF ``xi`` under the density ∝ (1 - t) a + t b (a, b >= 0)."""
-    den = a + torch.sqrt((a * a + xi * (b * b - a * a)).clamp(min=0))
-    t = torch.where(den > 0, xi * (a + b) / den.clamp(min=1e-30), xi)
-    return t.clamp(0, 1)
-
-
 def _lerp_rows(table: Tensor, r: Tensor, c: Tensor, t: Tensor, w: int) -> Tensor:
     """``table [p, (h+2)*w]`` at column ``c`` of node rows r and r + 1, interpolated at ``t``."""
     return torch.lerp(table.gather(1, r * w + c), table.gather(1, (r + 1) * w + c), t)
@@ -291,7 +285,7 @@ def _env_directions(env: _EnvSampler, tab: _EnvTables, u: Tensor) -> Tensor:
     r, xi = _invert(tab.row_cdf / tab.row_cdf[:, -1:].clamp(min=1e-30), u[..., 0])  # dual row [p, S]
     rows = tab.col_cdf[:, wk - 1::wk]  # [p, h+2]: node row sums
     a, b = rows.gather(1, r), rows.gather(1, r + 1)
-    t = _linear_inverse(a, b, xi)
+    t = sample_linear(xi, a, b)
     # the cell: the first column whose cumulative mass at v exceeds u2 x the row's mass at v
     target = u[..., 1] * torch.lerp(a, b, t)
     lo, hi = torch.zeros_like(r), torch.full_like(r, wk - 1)
@@ -304,7 +298,7 @@ def _env_directions(env: _EnvSampler, tab: _EnvTables, u: Tensor) -> Tensor:
     a = _lerp_rows(tab.q, r, c, t, wk)
     b = _lerp_rows(tab.q, r, torch.where(c == wk - 1, 0, c + 1), t, wk)
     xi = ((target - prev) / ((a + b) * 0.5).clamp(min=1e-30)).clamp(0, 1)
-    uu = 0.5 + (c + _linear_inverse(a, b, xi)) / env.k
+    uu = 0.5 + (c + sample_linear(xi, a, b)) / env.k
     vv = torch.lerp(env.row_v[r], env.row_v[r + 1], t)
     d = pano.uv_to_dir(uu, vv, env.h, env.w, dim=-1)
     n = tab.n[:, None]

@@ -237,6 +237,15 @@ def power_heuristic(n_a: float | Tensor, pdf_a: Tensor, n_b: float | Tensor, pdf
     return torch.where(den > 0, a / den.clamp(min=1e-30), torch.zeros_like(den))
 
 
+def sample_linear(u: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """Inverse CDF on [0, 1] of the density ∝ (1 - t) a + t b (a, b >= 0): the t whose CDF is ``u``
+    (``u`` itself where a = b = 0).  The rendering layer's environment sampler and the path
+    tracer's bilinear warp of quad lights both invert it."""
+    den = a + torch.sqrt(torch.lerp(a * a, b * b, u).clamp(min=0))
+    t = torch.where(den > 0, u * (a + b) / den.clamp(min=1e-30), u)
+    return t.clamp(0, 1)
+
+
 def select_lobe(u: Tensor, prob_first: Tensor) -> tuple[Tensor, Tensor]:
     """One-sample lobe selection: (``u < prob_first``, ``u`` rescaled to [0,1) within its lobe).
 

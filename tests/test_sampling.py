@@ -111,3 +111,14 @@ def test_mis_weights_and_lobe_selection():
     assert abs(float(first.double().mean()) - 0.3) < 1e-3
     assert float(re.min()) >= 0 and float(re.max()) < 1
     assert abs(float(re[first].mean()) - 0.5) < 1e-3 and abs(float(re[~first].mean()) - 0.5) < 1e-3
+
+
+def test_sample_linear_inverts_the_linear_cdf():
+    g = torch.Generator().manual_seed(11)
+    a, b, u = (torch.rand(1000, generator=g, dtype=torch.float64) for _ in range(3))
+    a[:100] = 0.0  # a density that vanishes at one end
+    t = S.sample_linear(u, a, b)
+    cdf = (a * t + (b - a) * t * t / 2) / ((a + b) / 2)  # integral of lerp(a, b, s) ds, normalised
+    torch.testing.assert_close(cdf, u, rtol=0, atol=1e-12)
+    us, zero = torch.tensor([0.0, 0.3, 1.0], dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
+    torch.testing.assert_close(S.sample_linear(us, zero, zero), us)  # no density: uniform

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from phyir.errors import PhyIRError
-from phyir.scene import PanoScene
+from phyir.scene import PROBE_OFFSET, PanoScene
 from phyir.synth.lights import AREA, PORTAL, SUN
 from phyir.synth.rooms import generate_room
 from phyir.synth.tracer import TraceSettings, trace
@@ -96,7 +96,7 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
                                        "sun": float(f"{sun * k:.6g}")}),
         "depth_range": f"{float(d.min()):.4f} {float(d.max()):.4f}",
         "camera_height": f"{room.camera[1]:.4f}",
-        "probe_offset": "0.05",
+        "probe_offset": f"{PROBE_OFFSET:g}",
         "spp": str(st.spp),
         "render_seconds": f"{seconds:.2f}",
         "render_stats": json.dumps({k: round(v, 2) for k, v in res.stats.items()}),

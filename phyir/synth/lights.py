@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from phyir.sampling import local_to_world
+from phyir.sampling import local_to_world, sample_linear
 from phyir.synth import geometry as G
 
 AREA, PORTAL, SUN = 0, 1, 2
@@ -295,11 +295,13 @@ class Lights:
         m = torch.nonzero(gk == G.QUAD).squeeze(1)
         if m.numel():
             i = li[m]
-            omega = _rect_solid_angle(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i])
+            frame = _rect_frame(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i])
+            omega = frame[5].float()
             cos_l = -(w[m] * self.nq[i]).sum(1)
             out[m] = torch.where((cos_l > 0) & (omega > 0), 1.0 / omega.clamp(min=1e-30), 0.0)
             if n is not None:
-                a, b = _rect_invert(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i], y[m])
+                a, b = _rect_invert(x[m], self.c[i], self.ex[i], self.ey[i], self.nq[i], self.h[i], y[m],
+                                    frame)
                 out[m] = out[m] * _bilinear_pdf(a.float(), b.float(), self.quad_weights(x[m], n[m], i))
         m = torch.nonzero(gk == G.SPH).squeeze(1)
         if m.numel():
@@ -354,11 +356,12 @@ def _sph_rect(x0, x1, y0, y1, z):
     return S, n0[:, 2], n2[:, 2], k
 
 
-def _rect_invert(x, c, ex, ey, n, h, y) -> tuple[Tensor, Tensor]:
+def _rect_invert(x, c, ex, ey, n, h, y, frame: tuple | None = None) -> tuple[Tensor, Tensor]:
     """The inverse of :func:`_rect_sample`: the uniforms ``(u1, u2)`` that map to point ``y`` on the
     quad (float64): u1 is the solid-angle fraction of the sub-rectangle left of ``y``, u2 the
-    fraction of the height-sine range along its column."""
-    x0, x1, y0, y1, z, S, _, _, _ = _rect_frame(x, c, ex, ey, n, h)
+    fraction of the height-sine range along its column; ``frame``: :func:`_rect_frame` of these
+    rows if already known."""
+    x0, x1, y0, y1, z, S, _, _, _ = _rect_frame(x, c, ex, ey, n, h) if frame is None else frame
     d = y.double() - x.double()
     xu = (d * ex.double()).sum(1).clamp(min=x0, max=x1)
     yv = (d * ey.double()).sum(1).clamp(min=y0, max=y1)
@@ -382,18 +385,13 @@ def _rect_corner_dirs(x, c, ex, ey, n, h) -> Tensor:
     return v / v.norm(dim=2, keepdim=True).clamp(min=1e-12)
 
 
-def _sample_linear(u: Tensor, a: Tensor, b: Tensor) -> Tensor:
-    """Inverse CDF of the density on [0,1] proportional to lerp(x, a, b) (a, b > 0)."""
-    x = u * (a + b) / (a + torch.sqrt(torch.lerp(a * a, b * b, u)))
-    return x.clamp(0, 1 - 1e-6)
-
-
 def _bilinear_warp(u1: Tensor, u2: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:
     """Warp uniforms to the bilinear density with corner values ``w [N,4]`` (order of
     :func:`_rect_corner_dirs`; Hart et al. 2020, as in pbrt-v4's spherical rectangles)."""
-    b = _sample_linear(u2, w[:, 0] + w[:, 1], w[:, 2] + w[:, 3])
-    a = _sample_linear(u1, torch.lerp(w[:, 0], w[:, 2], b), torch.lerp(w[:, 1], w[:, 3], b))
-    return a, b
+    below_one = 1 - 1e-6
+    b = sample_linear(u2, w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]).clamp(max=below_one)
+    a = sample_linear(u1, torch.lerp(w[:, 0], w[:, 2], b), torch.lerp(w[:, 1], w[:, 3], b))
+    return a.clamp(max=below_one), b
 
 
 def _bilinear_pdf(a: Tensor, b: Tensor, w: Tensor) -> Tensor:
