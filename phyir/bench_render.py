@@ -205,9 +205,10 @@ class Reference:
 # the benchmark
 
 FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3, "memory": True,
-        "is_spp": (1, 2, 4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64}
+        "is_spp": (1, 2, 4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64,
+        "seeds": 6}
 QUICK = {"size": (64, 128), "block": 2, "probe": (16, 32), "ref_spp": 512, "repeats": 2,
-         "is_spp": (1, 2, 4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16}
+         "is_spp": (1, 2, 4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16, "seeds": 2}
 
 
 def _loglog(xs: list[float], ys: list[float], y: float) -> float:
@@ -350,6 +351,62 @@ def summarize(res: dict) -> dict:
             cmp[f"prefiltered_{key}"] = pref[key]
             cmp[f"speedup_{key.split('_')[0]}"] = t_is / pref[key]
         out["prefiltered_vs_is"] = cmp
+    return out
+
+
+def seed_spread(kind: str, cfg: dict, device: str, base: dict, log: Callable[[str], None]) -> dict:
+    """The prefiltered path against importance sampling on ``cfg["seeds"]`` scenes of ``kind``.
+
+    Seed 0 is ``base`` (:func:`bench_methods` with its summary).  Every further seed gets its own
+    reference, prefiltered error and time, and importance-sampling errors at ``cfg["is_spp"]``; the
+    importance-sampled time at the matching spp is read off seed 0's timing curve (same size, probes
+    and pixel classes: its cost depends on the sample count, not on the lighting).
+    """
+    from phyir import prefilter
+    from phyir.render import render_scene
+
+    isr = [r for r in base["rows"] if r["method"] == "importance"]
+    spp = [r["spp"] for r in isr]
+    p0 = base["summary"].get("prefiltered_vs_is", {})
+    keys = ("prefiltered_err", "is_spp_same_err", "prefiltered_median_s", "prefiltered_cpu_s",
+            "speedup_median", "speedup_cpu")
+    rows = [{"seed": 0, **{k: p0.get(k, math.nan) for k in keys}}]
+    H, W = cfg["size"]
+    for seed in range(1, cfg.get("seeds", 1)):
+        sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"], seed=seed).to(device)
+        mask = _shaded_mask(sc)
+        ref = Reference(sc, cfg["ref_spp"], mask)
+
+        def pf(scene: PanoScene = sc) -> dict[str, Tensor]:
+            prefilter._cache.clear()
+            return render_scene(scene, method="prefiltered")
+
+        err_pf = ref.errors(pf())["err_image"]
+        t_pf = time_interleaved({"pf": pf}, device, cfg["repeats"])["pf"]
+        err_is = [ref.errors(render_scene(sc, spp=n, method="importance", seed=7))["err_image"] for n in spp]
+        need = _loglog(spp, err_is, err_pf)
+        row = {"seed": seed, "prefiltered_err": err_pf, "is_spp_same_err": need,
+               "is_errors": dict(zip(spp, err_is)), "prefiltered_median_s": t_pf["median_s"],
+               "prefiltered_cpu_s": t_pf["cpu_s"]}
+        for key in ("median_s", "cpu_s"):
+            row[f"speedup_{key.split('_')[0]}"] = _interp_time(spp, [r[key] for r in isr], need) / t_pf[key]
+        rows.append(row)
+        log(f"  {kind} seed {seed}: prefiltered err {err_pf:.4f} ({t_pf['median_s'] * 1e3:.1f} ms) = "
+            f"importance {need:.0f} spp: {row['speedup_median']:.1f}x (median wall), "
+            f"{row['speedup_cpu']:.1f}x (CPU)")
+    return {"rows": rows, **spread_summary(rows)}
+
+
+def spread_summary(rows: list[dict]) -> dict:
+    """Median and minimum over the seeds of the speed-ups in wall and CPU time (one thread: CPU time
+    is the fairer measure on a shared machine), and how many seeds reach 20x in each."""
+    out = {}
+    for key in ("median", "cpu"):
+        sp = [r[f"speedup_{key}"] for r in rows]
+        name = "" if key == "median" else "_cpu"
+        out[f"speedup{name}_median_of_seeds"] = statistics.median(sp)
+        out[f"speedup{name}_min_of_seeds"] = min(sp)
+        out[f"seeds{name}_at_20x"] = sum(v >= 20 for v in sp)
     return out
 
 
@@ -563,6 +620,9 @@ def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str]
         sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"]).to(device)
         res = bench_methods(sc, cfg, device, log)
         res["summary"] = summarize(res)
+        if cfg.get("seeds", 1) > 1:
+            log(f"render bench: prefiltered against importance sampling on {cfg['seeds']} {kind} scenes")
+            res["seeds"] = seed_spread(kind, cfg, device, res, log)
         result["scenes"][kind] = res
     log(f"render bench: skips on the mixed scene {H}x{W}")
     sc = bench_scene("mixed", H, W, cfg["block"], cfg["probe"]).to(device)
@@ -620,6 +680,23 @@ def format_table(result: dict) -> str:
                          f"= importance {p['is_spp_same_err']:.0f} spp ({p['is_median_s'] * 1e3:.0f} ms): "
                          f"{p['speedup_median']:.1f}x faster (median wall), "
                          f"{p['speedup_min']:.1f}x (min wall), {p['speedup_cpu']:.1f}x (CPU time)")
+        sd = res.get("seeds")
+        if sd:
+            lines += ["", f"prefiltered against importance sampling on {len(sd['rows'])} {kind} scenes "
+                      "(seeds; importance-sampled time from seed 0's curve)", "",
+                      "| seed | prefiltered err image | ms (median) | = importance spp "
+                      "| speed-up (median wall) | speed-up (CPU) |",
+                      "| ---: | ---: | ---: | ---: | ---: | ---: |"]
+            for r in sd["rows"]:
+                lines.append(f"| {r['seed']} | {r['prefiltered_err']:.4f} | "
+                             f"{r['prefiltered_median_s'] * 1e3:.1f} | {r['is_spp_same_err']:.0f} | "
+                             f"{r['speedup_median']:.1f}x | {r['speedup_cpu']:.1f}x |")
+            lines.append("- speed-up over the seeds, median wall time: median "
+                         f"{sd['speedup_median_of_seeds']:.1f}x, "
+                         f"min {sd['speedup_min_of_seeds']:.1f}x, {sd['seeds_at_20x']} of {len(sd['rows'])} "
+                         f"scenes at >= 20x; CPU time: median {sd['speedup_cpu_median_of_seeds']:.1f}x, "
+                         f"min {sd['speedup_cpu_min_of_seeds']:.1f}x, {sd['seeds_cpu_at_20x']} of "
+                         f"{len(sd['rows'])} scenes at >= 20x")
         lines.append("")
     for m in result.get("memory", []):
         lines.append(f"- memory, {m['size'][0]}x{m['size'][1]} {m['method']} {m['spp']} spp "
@@ -760,6 +837,35 @@ def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repe
     return {"kind": kind, "threads": torch.get_num_threads(), "rows": rows}
 
 
+def resummarize(out_dir: str | os.PathLike) -> dict:
+    """Recompute the summaries of ``out_dir/render.json`` from its measured rows (after a change to
+    :func:`summarize` or :func:`spread_summary`; nothing is re-measured) and rewrite it, its table in
+    ``report.md``/``report.json`` and its plot."""
+    import json
+
+    from phyir import bench_report
+
+    out = Path(out_dir)
+    result = json.loads((out / "render.json").read_text())
+    for res in result["scenes"].values():
+        res["summary"] = summarize(res)
+        if "seeds" in res:
+            res["seeds"].update(spread_summary(res["seeds"]["rows"]))
+    bench_report.save_target(out, "render", result, plot, format_table, lambda s: None)
+    report_path = out / "report.json"
+    if report_path.exists():
+        import sys
+
+        report = json.loads(report_path.read_text())
+        old = report["targets"].get("render", {})
+        entry = bench_report.target_entry("render", sys.modules[__name__], result, old.get("seconds", 0.0),
+                                          out, [])
+        entry.update(date=old.get("date", entry["date"]), command=old.get("command", ""))
+        report["targets"]["render"] = entry
+        bench_report.write_report(out, report)
+    return result
+
+
 if __name__ == "__main__":
     # python -m phyir.bench_render OUT.json [glossy|metal ...]: errors only (sample_ratios)
     # python -m phyir.bench_render OUT.json --prefiltered-cpu [kind [threads [spp ...]]]: prefiltered_cpu
@@ -772,6 +878,9 @@ if __name__ == "__main__":
         case = json.loads(sys.argv[2])
         torch.set_num_threads(case.pop("threads"))
         print(json.dumps(_memory_child(**case)))
+        raise SystemExit(0)
+    if sys.argv[1:2] == ["--resummarize"]:  # python -m phyir.bench_render --resummarize DIR
+        print(format_table(resummarize(sys.argv[2])))
         raise SystemExit(0)
     if sys.argv[2:3] == ["--prefiltered-cpu"]:
         args = sys.argv[3:]

@@ -114,6 +114,11 @@ def render_key_numbers(result: dict) -> dict[str, float]:
         cmp = res["summary"].get("prefiltered_vs_is")
         if cmp:
             out[f"{kind}.prefiltered_speedup_at_equal_error"] = cmp["speedup_median"]
+        sd = res.get("seeds")
+        if sd and "speedup_cpu_median_of_seeds" in sd:
+            tag = f"{kind}.prefiltered_speedup_cpu"
+            out[f"{tag}.median_of_{len(sd['rows'])}_seeds"] = sd["speedup_cpu_median_of_seeds"]
+            out[f"{tag}.min_of_{len(sd['rows'])}_seeds"] = sd["speedup_cpu_min_of_seeds"]
     for e in result["skips"][-1]["summary"]:
         out[f"skip.{e['skip']}.time_saved_frac"] = e["time_saved_frac"]
         out[f"skip.{e['skip']}.err_image"] = e["err_image"]

@@ -41,10 +41,9 @@ FAR_LIGHT = 30.0  # metres: lights whose ray leaves the depth surface are put th
 
 
 @lru_cache(maxsize=4)
-def _quadrature(h: int, w: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Fine directions ``[3, F]`` (``SUPERSAMPLE``^2 per texel), their solid angles ``[F]`` and the
+def _quadrature(h: int, w: int, s: int = SUPERSAMPLE) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Fine directions ``[3, F]`` (``s``^2 per texel), their solid angles ``[F]`` and the
     bilinear taps (indices, weights ``[F, 4]``) of an h x w probe at them."""
-    s = SUPERSAMPLE
     hf, wf = h * s, w * s
     d = pano.directions(hf, wf, dtype=torch.float64).reshape(3, -1)
     omega = pano.solid_angles(hf, wf, dtype=torch.float64).reshape(-1)

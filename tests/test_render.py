@@ -407,13 +407,18 @@ def test_bench_render_smoke(tmp_path, monkeypatch):
     from phyir.cli import main
 
     tiny = {"size": (16, 32), "block": 2, "probe": (8, 16), "ref_spp": 64, "repeats": 1,
-            "is_spp": (2, 8), "uniform_spp": (8,), "skip_spp": 4}
+            "is_spp": (2, 8), "uniform_spp": (8,), "skip_spp": 4, "seeds": 2}
     monkeypatch.setattr(bench_render, "QUICK", tiny)
     assert main(["bench", "render", "--quick", "-o", str(tmp_path)]) == 0
     res = json.loads((tmp_path / "render.json").read_text())
     rows = res["scenes"]["glossy"]["rows"]
     assert {r["method"] for r in rows} == {"prefiltered", "uniform", "importance"}
     assert all(r["median_s"] > 0 and math.isfinite(r["err_image"]) for r in rows)
+    spread = res["scenes"]["metal"]["seeds"]  # seed 0 from the main run, seed 1 measured on its own
+    assert [r["seed"] for r in spread["rows"]] == [0, 1]
+    assert all(r["speedup_median"] > 0 and math.isfinite(r["prefiltered_err"]) for r in spread["rows"])
+    assert spread["speedup_min_of_seeds"] <= spread["speedup_median_of_seeds"]
+    assert "scenes at >= 20x" in (tmp_path / "report.md").read_text()
     assert (tmp_path / "render.png").stat().st_size > 1000
     assert main(["bench", "nonsense", "-o", str(tmp_path)]) == 2
 

@@ -1,0 +1,140 @@
+"""Where the split-sum path's error comes from, on draws of ``phyir bench render``'s scenes.
+
+For each scene (128x256, a probe per 2x2 pixels, probes of 16x32) it prints the image error
+(relative RMSE against converged Monte Carlo) of
+
+* ``prefiltered``: the renderer's split sum (levels ``prefilter.PREFILTER_ALPHAS``, coarse maps);
+* ``fine levels``: the same with 14 levels (alpha 0, 0.02, ..., 1) at the probes' full resolution:
+  what finer prefiltering alone can buy;
+* ``ideal split sum``: every pixel's radiance weighted by the exact GGX lobe of its own alpha around
+  its look-up direction (quadrature of the probes' bilinear interpolant, 4x4 points per texel), times
+  the DFG albedo: the split sum without any level, resolution or interpolation error, i.e. the floor
+  of the approximation (an isotropic lobe around one direction, independent of n.v);
+
+and, for the pixels with the largest squared error of ``prefiltered``, the brute-force value (the
+pixel's bilinear probe mixture times f_s cos, summed over a 16x16-supersampled grid per texel), the
+*ideal* split sum (that radiance weighted by the exact GGX lobe of the pixel's alpha around the
+look-up direction, times the DFG albedo: the split sum without any level or interpolation error)
+and the renderer's value.  A pixel where the ideal split sum is close to the truth but the renderer
+is not errs in the levels (their alpha spacing and resolution); one where the ideal split sum is far
+off errs in the split-sum approximation itself (the isotropic lobe around one direction).
+
+    .venv/bin/python benchmarks/split_sum_limits.py [--kind metal] [--seeds 0 1] [--worst 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import torch
+
+from phyir import prefilter, render
+from phyir.bench_render import Reference, _shaded_mask, bench_scene
+from phyir.brdf import alpha_from_roughness, brdf_vectors, ggx_d
+from phyir.object_lighting import _quadrature
+
+FINE_ALPHAS = (0.0, 0.02, 0.05, 0.08, 0.12, 0.16, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
+SUPER = 16
+
+
+def _prefiltered(scene, alphas: tuple[float, ...], texels_per_alpha: float) -> dict:
+    keep = prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA
+    prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA = alphas, texels_per_alpha
+    try:  # the operator cache is keyed by alphas, not by the level sizes: clear it both ways
+        prefilter._stacked_operator_cpu.cache_clear()
+        prefilter._cache.clear()
+        return render.render_scene(scene, method="prefiltered")
+    finally:
+        prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA = keep
+        prefilter._stacked_operator_cpu.cache_clear()
+        prefilter._cache.clear()
+
+
+def _ideal_split_sum(scene, chunk: int = 512) -> dict:
+    px, light, _, _ = render._scene_inputs(scene, render._skip_set(True))
+    d, weights = prefilter._fine_grid(*light.probes.shape[-2:])  # directions, solid angle x taps
+    d, weights = d.to(px.n.dtype), weights.to(px.n.dtype)
+    nv = (px.n * px.v).sum(-1)
+    alpha = alpha_from_roughness(px.rough)
+    look = render._dominant_direction(px.n, 2 * nv[:, None] * px.n - px.v, alpha)
+    probes = light.probes.reshape(light.probes.shape[0], 3, -1)
+    rad = torch.zeros_like(px.n)
+    for s in range(0, len(rad), chunk):
+        e = slice(s, s + chunk)
+        c = look[e] @ d.T
+        kernel = (ggx_d(torch.sqrt(((1 + c) / 2).clamp(min=0)), alpha[e]) * c.clamp(min=0)) @ weights
+        env = (light.weight[e][:, :, None, None] * probes[light.index[e]]).sum(1)  # [p, 3, h*w]
+        rad[e] = (env * (kernel / kernel.sum(-1, keepdim=True))[:, None]).sum(-1)
+    f0 = render.f0_from_material(px.base, px.metal)
+    spec = torch.where(px.skip[:, None], 0.0, prefilter.specular_albedo(nv, px.rough[:, 0], f0) * rad)
+    H, W = scene.size
+    spec = render._unflat(spec, 1, H, W, False)
+    diffuse = render.render_scene(scene, method="prefiltered")["diffuse"]
+    return {"diffuse": diffuse, "specular": spec, "image": diffuse + spec}
+
+
+def _grid(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Directions ``[F, 3]``, solid angles and bilinear taps of a SUPER x SUPER grid per probe texel."""
+    d, omega, idx, wgt = _quadrature(h, w, SUPER)
+    return d.T, omega, idx, wgt
+
+
+def _pixel_terms(px, light, p: int, grid) -> tuple[float, float, float, float]:
+    """(n.v, brute force, ideal split sum, R) of flat pixel ``p``, red channel."""
+    d, omega, idx, wgt = grid
+    env = sum(light.weight[p, k].double() * light.probes[light.index[p, k]].double() for k in range(4))
+    radiance = (env.reshape(3, -1)[:, idx] * wgt).sum(-1).T  # [F, 3]
+    n, v, rough, base = (t[p].double() for t in (px.n, px.v, px.rough, px.base))
+    metal = px.metal[p].double()
+    _, fs = brdf_vectors(n[:, None].expand(3, len(d)), v[:, None].expand(3, len(d)), d.T, base[:, None],
+                         rough[:, None], metal[:, None], dim=0)
+    cos = (d @ n).clamp(min=0)
+    truth = float((fs[0] * cos * radiance[:, 0] * omega).sum())
+    nv = float(n @ v)
+    alpha = alpha_from_roughness(rough)
+    look = render._dominant_direction(n[None], (2 * nv * n - v)[None], alpha[None])[0]
+    c = d @ look
+    k = ggx_d(torch.sqrt(((1 + c) / 2).clamp(min=0)), alpha) * c.clamp(min=0) * omega
+    f0 = render.f0_from_material(base, metal)
+    albedo = prefilter.specular_albedo(torch.tensor([nv], dtype=torch.float64), rough, f0[None])[0]
+    ideal = float((k * radiance[:, 0]).sum() / k.sum() * albedo[0])
+    return nv, truth, ideal, float(rough[0])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kind", default="metal", choices=("glossy", "metal"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--worst", type=int, default=4)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    torch.set_grad_enabled(False)
+    for seed in args.seeds:
+        scene = bench_scene(args.kind, seed=seed)
+        ref = Reference(scene, args.ref_spp, _shaded_mask(scene))
+        out = _prefiltered(scene, prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA)
+        fine = _prefiltered(scene, FINE_ALPHAS, 1e-9)  # 1e-9: levels never halved
+        ideal = _ideal_split_sum(scene)
+        print(f"{args.kind} seed {seed}: image error prefiltered {ref.errors(out)['err_image']:.4f}, "
+              f"fine levels {ref.errors(fine)['err_image']:.4f}, "
+              f"ideal split sum {ref.errors(ideal)['err_image']:.4f}")
+        px, light, _, _ = render._scene_inputs(scene, render._skip_set(True))
+        err2 = ((out["specular"] - ref.layers["specular"]) ** 2 * ref.mask).sum(0).reshape(-1)
+        share = err2 / err2.sum()
+        grid = _grid(*light.probes.shape[-2:])
+        W = scene.size[1]
+        for p in err2.topk(args.worst).indices.tolist():
+            nv, truth, ideal, rough = _pixel_terms(px, light, p, grid)
+            y, x = divmod(p, W)
+            got, mc = float(out["specular"][0, y, x]), float(ref.layers["specular"][0, y, x])
+            print(f"  pixel ({y},{x}) n.v {nv:.2f} R {rough:.2f} ({100 * float(share[p]):.1f}% of the "
+                  f"squared error), red: truth {truth:.3f} (reference {mc:.3f}), "
+                  f"ideal split sum {ideal:.3f} ({100 * (ideal / truth - 1):+.0f}%), "
+                  f"prefiltered {got:.3f} ({100 * (got / truth - 1):+.0f}%)")
+        assert math.isfinite(float(err2.sum()))
+
+
+if __name__ == "__main__":
+    main()
