@@ -256,7 +256,7 @@ def test_shade_env_and_prefiltered_path_finite(probes):
                                                       sc.metallic.reshape(1, 1, P), env)]
     for method in render.METHODS:
         out = render.shade_env(*leaves, spp=4, method=method)
-        assert finite(out) and float(out.min()) >= 0, method
+        assert finite(out) and float(out.detach().min()) >= 0, method
         grads = torch.autograd.grad(out.sum(), leaves)
         assert all(finite(gr) for gr in grads), method
     e = env.clone().requires_grad_(True)
