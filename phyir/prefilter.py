@@ -212,15 +212,18 @@ def _fine_grid(h: int, w: int) -> tuple[Tensor, Tensor]:
     return d, omega * to_probe
 
 
+def lobe_kernel(cos: Tensor, alpha: Tensor) -> Tensor:
+    """The prefiltering kernel D(h) (r.l) (unnormalised) of a direction l at cosine ``cos`` = r.l from
+    the lobe axis r, under n = v = r (so n.h = sqrt((1 + cos) / 2)); zero behind the axis."""
+    return ggx_d(torch.sqrt(((1 + cos) / 2).clamp(min=0)), alpha) * cos.clamp(min=0)
+
+
 @lru_cache(maxsize=32)
 def _level_operator_cpu(h: int, w: int, hl: int, wl: int, alpha: float) -> Tensor:
     """``[hl*wl, h*w]``: the GGX lobe of ``alpha`` (n = v = r) at the centres of an ``hl x wl`` level."""
     d, weights = _fine_grid(h, w)
     r = pano.directions(hl, wl, dtype=torch.float64).reshape(3, -1).T
-    cos = r @ d.T
-    k = ggx_d(torch.sqrt(((1 + cos) / 2).clamp(min=0)), torch.tensor(alpha, dtype=torch.float64))
-    k = k * cos.clamp(min=0)
-    op = k @ weights
+    op = lobe_kernel(r @ d.T, torch.tensor(alpha, dtype=torch.float64)) @ weights
     return op / op.sum(-1, keepdim=True)
 
 
