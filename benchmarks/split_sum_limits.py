@@ -6,18 +6,19 @@ For each scene (128x256, a probe per 2x2 pixels, probes of 16x32) it prints the 
 * ``prefiltered``: the renderer's split sum (levels ``prefilter.PREFILTER_ALPHAS``, coarse maps);
 * ``fine levels``: the same with 14 levels (alpha 0, 0.02, ..., 1) at the probes' full resolution:
   what finer prefiltering alone can buy;
-* ``ideal split sum``: every pixel's radiance weighted by the exact GGX lobe of its own alpha around
-  its look-up direction (quadrature of the probes' bilinear interpolant, 4x4 points per texel), times
-  the DFG albedo: the split sum without any level, resolution or interpolation error, i.e. the floor
-  of the approximation (an isotropic lobe around one direction, independent of n.v);
+* ``ideal split sum``: every pixel's radiance weighted by the exact prefilter kernels of the
+  renderer's two look-ups (directions and alpha from :func:`phyir.prefilter.lobe_shape_table`;
+  quadrature of the probes' bilinear interpolant, 4x4 points per texel), times the DFG albedo: the
+  split sum without any level, resolution or interpolation error, i.e. the floor of the
+  approximation (two isotropic kernels standing in for the lobe, the BRDF's weight pulled out);
 
 and, for the pixels with the largest squared error of ``prefiltered``, the brute-force value (the
 pixel's bilinear probe mixture times f_s cos, summed over a 16x16-supersampled grid per texel), the
-*ideal* split sum (that radiance weighted by the exact GGX lobe of the pixel's alpha around the
-look-up direction, times the DFG albedo: the split sum without any level or interpolation error)
+*ideal* split sum (that radiance weighted by the exact kernels of the two look-ups, times the DFG
+albedo: the split sum without any level or interpolation error)
 and the renderer's value.  A pixel where the ideal split sum is close to the truth but the renderer
 is not errs in the levels (their alpha spacing and resolution); one where the ideal split sum is far
-off errs in the split-sum approximation itself (the isotropic lobe around one direction).
+off errs in the split-sum approximation itself (kernels standing in for the lobe).
 
     .venv/bin/python benchmarks/split_sum_limits.py [--kind metal] [--seeds 0 1] [--worst 4]
 """
@@ -30,9 +31,8 @@ import torch
 
 from phyir import prefilter, render
 from phyir.bench_render import Reference, _shaded_mask, bench_scene
-from phyir.brdf import alpha_from_roughness, brdf_vectors
+from phyir.brdf import brdf_vectors
 from phyir.object_lighting import _quadrature
-from phyir.sampling import reflect
 
 FINE_ALPHAS = (0.0, 0.02, 0.05, 0.08, 0.12, 0.16, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 SUPER = 16
@@ -51,22 +51,28 @@ def _prefiltered(scene, alphas: tuple[float, ...], texels_per_alpha: float) -> d
         prefilter._cache.clear()
 
 
+def _lookups(n: torch.Tensor, v: torch.Tensor, rough: torch.Tensor, f0: torch.Tensor):
+    """The renderer's two look-up directions ``[p, 3]`` each and their alpha ``[p]``."""
+    shape = render._lobe_shape((n * v).sum(-1), rough, f0)
+    return render._lobe_taps(n, v, shape[:, 0], shape[:, 1]), shape[:, 2]
+
+
 def _ideal_split_sum(scene, px, light, diffuse: torch.Tensor, chunk: int = 512) -> dict:
     """Layers with the ideal split sum as the specular (``px``, ``light``: the scene's
     :func:`phyir.render._scene_inputs`; ``diffuse``: the renderer's)."""
     d, weights = prefilter._fine_grid(*light.probes.shape[-2:])  # directions, solid angle x taps
     d, weights = d.to(px.n.dtype), weights.to(px.n.dtype)
     nv = (px.n * px.v).sum(-1)
-    alpha = alpha_from_roughness(px.rough)
-    look = render._dominant_direction(px.n, reflect(px.v, px.n), alpha)
+    f0 = render.f0_from_material(px.base, px.metal)
+    looks, alpha = _lookups(px.n, px.v, px.rough[:, 0], f0)
     probes = light.probes.reshape(light.probes.shape[0], 3, -1)
     rad = torch.zeros_like(px.n)
     for s in range(0, len(rad), chunk):
         e = slice(s, s + chunk)
-        kernel = prefilter.lobe_kernel(look[e] @ d.T, alpha[e]) @ weights
         env = (light.weight[e][:, :, None, None] * probes[light.index[e]]).sum(1)  # [p, 3, h*w]
-        rad[e] = (env * (kernel / kernel.sum(-1, keepdim=True))[:, None]).sum(-1)
-    f0 = render.f0_from_material(px.base, px.metal)
+        for look in looks:
+            kernel = prefilter.lobe_kernel(look[e] @ d.T, alpha[e, None]) @ weights
+            rad[e] += 0.5 * (env * (kernel / kernel.sum(-1, keepdim=True))[:, None]).sum(-1)
     spec = torch.where(px.skip[:, None], 0.0, prefilter.specular_albedo(nv, px.rough[:, 0], f0) * rad)
     H, W = scene.size
     spec = render._unflat(spec, 1, H, W, False)
@@ -91,10 +97,9 @@ def _pixel_terms(px, light, p: int, grid) -> tuple[float, float, float, float]:
     cos = (d @ n).clamp(min=0)
     truth = float((fs[0] * cos * radiance[:, 0] * omega).sum())
     nv = float(n @ v)
-    alpha = alpha_from_roughness(rough)
-    look = render._dominant_direction(n[None], reflect(v, n)[None], alpha[None])[0]
-    k = prefilter.lobe_kernel(d @ look, alpha) * omega
     f0 = render.f0_from_material(base, metal)
+    looks, alpha = _lookups(n[None], v[None], rough, f0[None])
+    k = sum(prefilter.lobe_kernel(d @ look[0], alpha) * omega for look in looks)
     albedo = prefilter.specular_albedo(torch.tensor([nv], dtype=torch.float64), rough, f0[None])[0]
     ideal = float((k * radiance[:, 0]).sum() / k.sum() * albedo[0])
     return nv, truth, ideal, float(rough[0])

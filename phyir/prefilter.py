@@ -1,9 +1,14 @@
 """The split-sum fast path: tables of this BRDF, probes prefiltered per roughness level, SH irradiance.
 
-Specular ≈ PF(r, alpha) · (F0 A + B): ``PF`` is the probe convolved with the GGX lobe under the
+Specular ≈ PF(l, alpha) · (F0 A + B): ``PF`` is the probe convolved with the GGX lobe under the
 n = v = r assumption (Karis 2013: kernel D(h) (r.l) over directions l, normalised to preserve
-constants), looked up in the reflected direction r and interpolated linearly in alpha between the
-levels of :data:`PREFILTER_ALPHAS`; ``(A, B)`` is the DFG table of *this* BRDF (UE4 Fresnel,
+constants), interpolated linearly in alpha between the levels of :data:`PREFILTER_ALPHAS`.  Karis
+looks it up in the mirror direction with the surface's alpha; here the look-up follows the shape
+of the actual lobe f_s cos at (n.v, R, F0) (:func:`lobe_shape_table`): the mean of two look-ups
+either side of the lobe's mean direction, along its axis in the plane of n and v, each with the
+alpha of the kernel as wide as the lobe across that plane — the lobe's first and second moments,
+which the n = v = r kernel gets wrong at grazing views (off-specular peak, stretched lobe).
+``(A, B)`` is the DFG table of *this* BRDF (UE4 Fresnel,
 Schlick-GGX G with k = (R+1)^2/8, from :mod:`phyir.brdf`).  Diffuse = B (1-M) · I(n), with ``I``
 the cosine-weighted mean radiance (irradiance / pi) from real spherical harmonics up to band 4
 (0.5% from converged Monte Carlo on the benchmark scenes, against 1.2% with the usual band 2).
@@ -45,6 +50,8 @@ SUPERSAMPLE = 4
 LEVEL_TEXELS_PER_ALPHA = 2.0
 MIN_LEVEL_HEIGHT = 4
 SH_LMAX = 4
+# the lobe-shape tables' Fresnel F0: dielectric and metal (the renderer interpolates in F0)
+LOBE_SHAPE_F0 = (0.04, 1.0)
 # Funk-Hecke coefficients of the clamped cosine per band, divided by pi (irradiance / pi)
 _COSINE_BANDS = (1.0, 2.0 / 3.0, 0.25, 0.0, -1.0 / 24.0)
 
@@ -113,6 +120,84 @@ def specular_peak_table(size: int = DFG_SIZE, device=None, dtype=torch.float32) 
     specular / diffuse of a pixel is at most pi (F0 T0 + T1) / (B (1 - M)) under any lighting.
     """
     return _spec_peak_cpu(size).to(device=device, dtype=dtype)
+
+
+def _rms_tangent(w: Tensor, x: Tensor) -> Tensor:
+    """Root mean square of the tangent coordinate ``x`` under weights ``w`` (over dim 0)."""
+    return ((w * x * x).sum(0) / w.sum(0)).sqrt()
+
+
+@lru_cache(maxsize=2)
+def _kernel_widths(samples: int) -> tuple[Tensor, Tensor]:
+    """Alphas and the RMS tangent coordinate of their prefilter kernels (:func:`lobe_kernel`)."""
+    pts = hammersley(samples, 2, dtype=torch.float64)
+    alphas = torch.cat((torch.tensor([1e-4]), torch.logspace(-3, 0, 97))).double()
+    h = ggx_half_vector(pts[:, None], alphas[None])  # [N, A, 3], ∝ D(h) (n.h)
+    l = 2 * h[..., 2:] * h - h.new_tensor([0.0, 0.0, 1.0])
+    return alphas, _rms_tangent((4 * l[..., 2]).clamp(min=0), l[..., 0])  # n = v = r: kernel/pdf = 4 r.l
+
+
+def _kernel_alpha(width: Tensor, samples: int) -> Tensor:
+    """The alpha whose prefilter kernel has RMS tangent coordinate ``width`` (interpolated; clamped
+    to alpha in [1e-4, 1])."""
+    alphas, widths = _kernel_widths(samples)
+    k = torch.searchsorted(widths, width.contiguous()).clamp(1, len(widths) - 1)
+    x = ((width - widths[k - 1]) / (widths[k] - widths[k - 1])).clamp(0, 1)
+    return torch.lerp(alphas[k - 1], alphas[k], x)
+
+
+@lru_cache(maxsize=4)
+def _lobe_shape_cpu(size: int, samples: int, f0: float) -> Tensor:
+    pts = hammersley(samples, 2, dtype=torch.float64)
+    nv = _grid(size)
+    v = torch.stack((torch.sqrt(1 - nv * nv), torch.zeros_like(nv), nv), -1)  # [S, 3]
+    th_r = torch.acos(nv)
+    out = torch.empty(3, size, size, dtype=torch.float64)
+    for i, r in enumerate(_grid(size).tolist()):
+        rough = torch.tensor(r, dtype=torch.float64)
+        h = ggx_half_vector(pts, alpha_from_roughness(rough))[:, None]  # [N, 1, 3]
+        vh = (h * v).sum(-1)  # [N, S]
+        l = 2 * vh[..., None] * h - v  # [N, S, 3]
+        nl = l[..., 2]
+        # f_s cos / pdf (D cancels)
+        w = torch.where(nl > 0, visibility(nl, nv, rough) * 4 * vh * nl / h[..., 2], torch.zeros_like(nl))
+        w = w * fresnel_ue4(vh, torch.full_like(vh, f0))
+        m = (w[..., None] * l).sum(0)  # [S, 3]
+        th = torch.atan2(-m[:, 0], m[:, 2])  # the mean direction's angle from n, toward r
+        # normalize(lerp(n, r, f)) points at th: tan th = f sin th_r / (1 - f + f cos th_r)
+        t = torch.tan(th)
+        f = torch.where(th_r > 1e-9, t / (torch.sin(th_r) + t * (1 - torch.cos(th_r))), 1.0)
+        e1 = torch.stack((torch.cos(th), torch.zeros_like(th), torch.sin(th)), -1)  # in-plane, ⊥ mean
+        w1 = _rms_tangent(w, (l * e1).sum(-1))
+        w2 = _rms_tangent(w, l[..., 1])
+        # two taps at +-d along e1, each with the lobe's width across, match its width in the plane
+        out[0, i], out[1, i] = f.clamp(0, 1), (w1 * w1 - w2 * w2).clamp(min=0).sqrt()
+        out[2, i] = _kernel_alpha(w2, samples)
+    return out
+
+
+def lobe_shape_table(f0: float, size: int = DFG_SIZE, samples: int = DFG_SAMPLES, device=None,
+                     dtype=torch.float32) -> Tensor:
+    """``[3, size, size]`` (f, d, alpha): where the split sum looks up the specular lobe f_s cos of
+    a surface with Fresnel F0 ``f0`` at (R, n.v) (rows, columns as in :func:`dfg_table`).
+
+    The lobe's mean direction is ``normalize(lerp(n, r, f))`` (r the mirror direction); two
+    look-ups at tangent offsets ``+-d`` from it along the lobe's axis in the plane of n and v, each
+    in the level of ``alpha`` (the prefilter kernel as wide as the lobe across that plane), match the
+    lobe's RMS widths in and across the plane.  Moments by GGX importance sampling, as the DFG table.
+    """
+    return _lobe_shape_cpu(size, samples, f0).to(device=device, dtype=dtype)
+
+
+@lru_cache(maxsize=4)
+def _lobe_shapes_cpu(size: int, samples: int) -> Tensor:
+    return torch.cat([_lobe_shape_cpu(size, samples, f0) for f0 in LOBE_SHAPE_F0])
+
+
+def lobe_shape_tables(size: int = DFG_SIZE, samples: int = DFG_SAMPLES, device=None,
+                      dtype=torch.float32) -> Tensor:
+    """``[6, size, size]``: :func:`lobe_shape_table` at F0 = each of :data:`LOBE_SHAPE_F0`, stacked."""
+    return _lobe_shapes_cpu(size, samples).to(device=device, dtype=dtype)
 
 
 def lookup_table(table: Tensor, n_dot_v: Tensor, roughness: Tensor) -> Tensor:
@@ -342,8 +427,12 @@ def irradiance_map(env: Tensor, size: tuple[int, int] | None = None) -> Tensor:
 
 def level_coords(roughness: Tensor, alphas: tuple[float, ...] = PREFILTER_ALPHAS) -> tuple[Tensor, Tensor]:
     """Level ``i0`` and weight ``t`` of level ``i0 + 1`` for linear interpolation in alpha."""
-    a = torch.tensor(alphas, device=roughness.device, dtype=roughness.dtype)
-    alpha = alpha_from_roughness(roughness)
+    return level_coords_alpha(alpha_from_roughness(roughness), alphas)
+
+
+def level_coords_alpha(alpha: Tensor, alphas: tuple[float, ...] = PREFILTER_ALPHAS) -> tuple[Tensor, Tensor]:
+    """:func:`level_coords` of lobe widths ``alpha``."""
+    a = torch.tensor(alphas, device=alpha.device, dtype=alpha.dtype)
     i0 = (torch.searchsorted(a, alpha.detach().contiguous(), right=True) - 1).clamp(0, len(alphas) - 2)
     t = ((alpha - a[i0]) / (a[i0 + 1] - a[i0])).clamp(0, 1)
     return i0, t

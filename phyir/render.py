@@ -25,8 +25,9 @@ Methods
 ``"uniform"``
     ``spp`` directions uniform on the hemisphere (the baseline of the benchmark).
 ``"prefiltered"``
-    Split sum, see :mod:`phyir.prefilter`, looked up in a direction between the mirror direction and
-    the normal (:func:`_dominant_direction`): no samples, biased (measured in docs/rendering.md).
+    Split sum, see :mod:`phyir.prefilter`, looked up twice around the specular lobe's mean direction
+    along its axis in the plane of n and v (:func:`_lobe_taps`, shaped by the measured moments of
+    the lobe): no samples, biased (measured in docs/rendering.md).
 
 Samples come from one scrambled Sobol (or Hammersley, or iid ``sampler="random"``) point set per
 lobe, rotated per pixel by seeded Cranley-Patterson shifts that depend on the pixel's position in
@@ -98,10 +99,6 @@ ROUGH_SPLIT = (1, 0, 1)
 # takes one sample of this strategy, at odd spp one more.  Diffuse lobes: the environment, which
 # follows radiance x cosine; metals: GGX.
 FIRST = {"std": 2, "spec": 1, "rough": 2}
-# prefiltered path: fraction of Frostbite's dominant-direction shift applied to the look-up
-# direction (see _dominant_direction; 0.3-0.5 measured best on the benchmark scenes, 1 over-bends;
-# docs/rendering.md: a second draw of the scenes where it does not help the glossy one)
-DOMINANT_SHIFT = 0.3
 CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
 _POLE_EPS = 1e-6
 
@@ -539,34 +536,48 @@ def _mirror_specular(px: _Pixels, light: _Lighting, texels: Tensor, idx: Tensor)
 
 
 def _sh_radiance(sh: Tensor, index: Tensor, weight: Tensor, d: Tensor) -> Tensor:
-    """``sum_k c_k Y_k(d)`` with coefficients ``sh [N, 3*K]`` mixed over the pixels' probes; ``[p, 3]``."""
+    """``sum_k c_k Y_k(d)`` with coefficients ``sh [N, 3*K]`` mixed over the pixels' probes; ``[p, 3]``.
+    ``d [p, 3]``, or ``[p, T, 3]`` for the mean over T directions (the basis is linear)."""
     c = _mix(sh, index, weight)  # [p, 3*K]
-    y = prefilter.sh_basis(d)  # [p, K]
+    y = prefilter.sh_basis(d)  # [p, K] or [p, T, K]
+    y = y.mean(1) if y.dim() == 3 else y
     return torch.bmm(c.reshape(len(y), 3, -1), y[:, :, None])[..., 0]
 
 
-def _dominant_direction(n: Tensor, r: Tensor, alpha: Tensor) -> Tensor:
-    """The split sum's look-up direction: the mirror direction ``r`` bent toward the normal by
-    :data:`DOMINANT_SHIFT` x the shift of Frostbite's "dominant direction" (Lagarde & de Rousiers
-    2014, lerp(n, r, s (sqrt(s) + alpha)) with s = 1 - alpha): the lobe of a rough surface peaks
-    off the mirror direction, toward n.  ``alpha [p, 1]``; identity for a mirror."""
-    s = 1 - alpha
-    f = 1 - DOMINANT_SHIFT * (1 - s.pow(1.5) - s * alpha)  # pow: a finite gradient at s = 0
-    return F.normalize(torch.lerp(n, r, f), dim=-1)
+def _lobe_shape(nv: Tensor, rough: Tensor, f0: Tensor) -> Tensor:
+    """``[p, 3]`` (f, d, alpha) of :func:`phyir.prefilter.lobe_shape_table`, linear in F0 between
+    its tables at :data:`phyir.prefilter.LOBE_SHAPE_F0` (F0: the mean over channels)."""
+    both = prefilter.lookup_table(prefilter.lobe_shape_tables(device=nv.device, dtype=nv.dtype), nv, rough)
+    lo, hi = prefilter.LOBE_SHAPE_F0
+    t = ((f0.mean(-1, keepdim=True) - lo) / (hi - lo)).clamp(0, 1)
+    return torch.lerp(both[:, :3], both[:, 3:], t)
+
+
+def _lobe_taps(n: Tensor, v: Tensor, f: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
+    """The split sum's two look-up directions: the lobe's mean direction ``normalize(lerp(n, r, f))``
+    (r the mirror direction) moved by the tangent offsets ``+-d`` along the lobe's axis in the plane
+    of n and v (:func:`phyir.prefilter.lobe_shape_table`; ``f, d [p]``)."""
+    mu = F.normalize(torch.lerp(n, reflect(v, n), f[:, None]), dim=-1)
+    axis = n - (n * mu).sum(-1, keepdim=True) * mu  # zero at n.v = 1 or R = 1, where d = 0
+    axis = axis / axis.norm(dim=-1, keepdim=True).clamp(min=1e-4)
+    step = d[:, None] * axis
+    return F.normalize(mu + step, dim=-1), F.normalize(mu - step, dim=-1)
 
 
 def _lookup(table: Tensor, h: int, w: int, index: Tensor, weight: Tensor, uv: tuple[Tensor, Tensor],
             scale: Tensor, planes: bool = False) -> Tensor:
-    """``scale x`` the bilinear look-up ``[p, 3]`` at ``uv`` (:func:`_unit_uv`, ``[p]`` each) of the
-    pixels' probe mixtures ``index/weight [p, K]`` in one equirect level ``h x w``.
+    """``scale x`` the mean of bilinear look-ups ``[p, 3]`` at ``uv`` (:func:`_unit_uv`, ``[p, T]``
+    each: T taps) of the pixels' probe mixtures ``index/weight [p, K]`` in one equirect level ``h x w``.
 
     ``table`` is texel-major channels-last ``[h*w, N, 3]`` (a prefiltered level) or, with
     ``planes``, the probes ``[N, 3, h, w]``, read through a strided view whose rows are a texel's
     three channel planes (no channels-last copy of the probes, which would cost more than every
-    look-up).  Either way one weighted bag of 4 probes x 4 taps per pixel.
+    look-up).  Either way one weighted bag of K probes x T taps x 4 texels per pixel.
     """
-    tidx, twgt = pano.bilinear_taps(uv[0] * w, uv[1] * h, h, w)  # [p, 4]
-    p, N = tidx.shape[0], table.shape[0] if planes else table.shape[1]
+    tidx, twgt = pano.bilinear_taps(uv[0] * w, uv[1] * h, h, w)  # [p, T, 4]
+    p, T = tidx.shape[:2]
+    tidx, twgt = tidx.reshape(p, -1), twgt.reshape(p, -1)
+    N = table.shape[0] if planes else table.shape[1]
     ind = index.to(torch.int32) if table.numel() < 2**31 else index
     tidx = tidx.to(ind.dtype)
     if planes:
@@ -574,7 +585,7 @@ def _lookup(table: Tensor, h: int, w: int, index: Tensor, weight: Tensor, uv: tu
     else:
         idx = ind[:, :, None] + (tidx * N)[:, None, :]
     idx = idx.reshape(p, -1)
-    wgt = ((weight * scale[:, None])[:, :, None] * twgt[:, None, :]).reshape(p, -1)
+    wgt = ((weight * (scale / T)[:, None])[:, :, None] * twgt[:, None, :]).reshape(p, -1)
     if not planes:
         return _mix(table.reshape(-1, 3), idx, wgt)
     if torch.is_grad_enabled() and table.requires_grad:  # one bag per channel plane
@@ -594,7 +605,10 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     n, v, rough, base, metal = (sel(t) for t in (px.n, px.v, px.rough, px.base, px.metal))
     index, weight = sel(light.index), sel(light.weight)
     alphas = prefilter.PREFILTER_ALPHAS
-    i0, t = prefilter.level_coords(rough[:, 0], alphas)
+    nv = (n * v).sum(-1)
+    f0 = f0_from_material(base, metal)
+    shape = _lobe_shape(nv, rough[:, 0], f0)
+    i0, t = prefilter.level_coords_alpha(shape[:, 2], alphas)
     level_w = [torch.where(i0 == lvl, 1 - t, torch.where(i0 + 1 == lvl, t, torch.zeros_like(t)))
                for lvl in range(len(alphas))]
     rows = [(wl > 0).nonzero()[:, 0] for wl in level_w]
@@ -604,20 +618,19 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     pf = prefilter.prefiltered(light.probes, alphas, need)
     N = light.probes.shape[0]
     sh = None if pf.sh is None else pf.sh.permute(1, 2, 0).reshape(N, -1)  # [N, 3*K]
-    nv = (n * v).sum(-1)
-    r = _dominant_direction(n, reflect(v, n), alpha_from_roughness(rough))  # unit n, v: unit r
-    ru, rv = _unit_uv(r)  # one direction -> texel mapping for every level
+    taps = torch.stack(_lobe_taps(n, v, shape[:, 0], shape[:, 1]), 1)  # [p, 2, 3]
+    uv = _unit_uv(taps)  # one direction -> texel mapping for every level
 
     def look(level: int, rows: Tensor | None) -> Tensor:
         kind, hl, wl = pf.plan[level]
         ii, ww = (index, weight) if rows is None else (index[rows], weight[rows])
         scale = level_w[level] if rows is None else level_w[level][rows]
         if kind == "sh":
-            return scale[:, None] * _sh_radiance(sh, ii, ww, r if rows is None else r[rows])
-        uv = (ru, rv) if rows is None else (ru[rows], rv[rows])
+            return scale[:, None] * _sh_radiance(sh, ii, ww, taps if rows is None else taps[rows])
+        uvr = uv if rows is None else (uv[0][rows], uv[1][rows])
         if kind == "probe":
-            return _lookup(light.probes, hl, wl, ii, ww, uv, scale, planes=True)
-        return _lookup(pf.maps[level], hl, wl, ii, ww, uv, scale)
+            return _lookup(light.probes, hl, wl, ii, ww, uvr, scale, planes=True)
+        return _lookup(pf.maps[level], hl, wl, ii, ww, uvr, scale)
 
     diffuse = torch.zeros_like(rho)
     if lit.numel():
@@ -632,7 +645,7 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
             parts_v.append(look(lvl, r_))
     if parts_i:
         pf_rad = pf_rad.index_add(0, torch.cat(parts_i), torch.cat(parts_v))
-    spec = prefilter.specular_albedo(nv, rough[:, 0], f0_from_material(base, metal)) * pf_rad
+    spec = prefilter.specular_albedo(nv, rough[:, 0], f0) * pf_rad
     if idx.numel() == P:
         return diffuse, spec
     return _assemble(P, [idx], [diffuse], [spec], dev, dt)

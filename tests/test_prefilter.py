@@ -17,24 +17,72 @@ def _hemisphere(nt: int = 800, np_: int = 400):
     return d, (t.sin() * (math.pi / 2 / nt) * (2 * math.pi / np_)).reshape(-1)
 
 
+def _lobe(l: torch.Tensor, nv: float, R: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """D Vis (n.l) and the Schlick factor Fc of directions ``l`` (n = z, v in the xz plane), written
+    out from the supplement's formulas: f_s cos = (F0 (1 - Fc) + Fc) D Vis (n.l)."""
+    v = torch.tensor([math.sqrt(1 - nv * nv), 0, nv], dtype=torch.float64)
+    h = (l + v) / (l + v).norm(dim=-1, keepdim=True)
+    nh, vh, nl = h[:, 2], h @ v, l[:, 2]
+    a = R * R
+    D = a * a / (math.pi * (nh * nh * (a * a - 1) + 1) ** 2)
+    k = (R + 1) ** 2 / 8
+    vis = 1 / (4 * (nl * (1 - k) + k) * (nv * (1 - k) + k))
+    return D * vis * nl, 2 ** ((-5.55473 * vh - 6.98316) * vh)
+
+
 def test_dfg_table_matches_brute_force_quadrature():
     table = prefilter.dfg_table(dtype=torch.float64)
     n = table.shape[-1]
     l, w = _hemisphere()
     for i, j in ((12, 3), (15, 20), (20, 10), (31, 31), (25, 0)):  # R = (i+.5)/n >= 0.39
-        R, nv = (i + 0.5) / n, (j + 0.5) / n
-        v = torch.tensor([math.sqrt(1 - nv * nv), 0, nv], dtype=torch.float64)
-        h = (l + v) / (l + v).norm(dim=-1, keepdim=True)
-        nh, vh, nl = h[:, 2], h @ v, l[:, 2]
-        a = R * R
-        D = a * a / (math.pi * (nh * nh * (a * a - 1) + 1) ** 2)
-        k = (R + 1) ** 2 / 8
-        vis = 1 / (4 * (nl * (1 - k) + k) * (nv * (1 - k) + k))
-        fc = 2 ** ((-5.55473 * vh - 6.98316) * vh)
-        A = float(((1 - fc) * D * vis * nl * w).sum())
-        B = float((fc * D * vis * nl * w).sum())
+        lobe, fc = _lobe(l, (j + 0.5) / n, (i + 0.5) / n)
+        A = float(((1 - fc) * lobe * w).sum())
+        B = float((fc * lobe * w).sum())
         assert abs(float(table[0, i, j]) - A) < 2e-3 * max(A, 0.1), (i, j, float(table[0, i, j]), A)
         assert abs(float(table[1, i, j]) - B) < 2e-3 * max(B, 0.1), (i, j, float(table[1, i, j]), B)
+
+
+def _rms(w: torch.Tensor, x: torch.Tensor) -> float:
+    return math.sqrt(float((w * x * x).sum() / w.sum()))
+
+
+def test_lobe_shape_table_matches_hemisphere_quadrature():
+    # the lobe f_s cos (explicit formulas, F0 Fresnel) on a polar grid of the hemisphere: its mean
+    # direction, RMS widths in and across the plane of n and v; the table's alpha: a kernel that wide
+    tables = {f0: prefilter.lobe_shape_table(f0, dtype=torch.float64) for f0 in (0.04, 1.0)}
+    n = tables[1.0].shape[-1]
+    l, dw = _hemisphere(1200, 600)
+    for f0, table in tables.items():
+        for i, j in ((9, 6), (12, 3), (15, 20), (20, 10), (25, 30), (28, 16)):  # R = (i+.5)/n in [0.3, 0.9]
+            nv = (j + 0.5) / n
+            lobe, fc = _lobe(l, nv, (i + 0.5) / n)
+            w = (f0 * (1 - fc) + fc) * lobe * dw
+            m = (w[:, None] * l).sum(0)
+            th = math.atan2(-float(m[0]), float(m[2]))
+            f, d, alpha = (float(x) for x in table[:, i, j])
+            th_r = math.acos(nv)  # normalize(lerp(n, r, f)) at angle th from n
+            th_f = math.atan2(f * math.sin(th_r), 1 - f + f * math.cos(th_r))
+            assert abs(th_f - th) < 0.01, (f0, i, j, th_f, th)
+            e1 = torch.tensor([math.cos(th), 0.0, math.sin(th)], dtype=torch.float64)
+            w1, w2 = _rms(w, l @ e1), _rms(w, l[:, 1])
+            assert abs(d - math.sqrt(max(w1 * w1 - w2 * w2, 0))) < 0.01, (f0, i, j, d, w1, w2)
+            kh = torch.sqrt((1 + l[:, 2]) / 2)  # the kernel D(h) (r.l) around r = z
+            kernel = alpha**2 / (math.pi * (kh * kh * (alpha**2 - 1) + 1) ** 2) * l[:, 2] * dw
+            assert abs(_rms(kernel, l[:, 0]) / w2 - 1) < 0.03, (f0, i, j, alpha, _rms(kernel, l[:, 0]), w2)
+
+
+def test_lobe_shape_table_limits():
+    # near-mirror lobes sit on the mirror direction; at normal incidence the lobe is isotropic
+    # (d ~ 0) and a little wider than the n = v = r kernel of its alpha (Schlick's G1(l) falls off
+    # slower than the kernel's cosine); rough lobes lean to the normal (f << 1)
+    t = prefilter.lobe_shape_table(1.0, dtype=torch.float64)
+    n = t.shape[-1]
+    assert float(t[0, 0].min()) > 0.99 and float(t[1, 0, n // 4:].max()) < 0.02
+    R = (torch.arange(n, dtype=torch.float64) + 0.5) / n
+    assert float(t[1, 8:, -1].max()) < 0.05 < 0.2 < float(t[1, 8:24, 0].min())  # n.v 0.984 vs 0.016
+    ratio = t[2, 8:24, -1] / R[8:24] ** 2
+    assert float(ratio.min()) > 1.0 and float(ratio.max()) < 1.3, ratio
+    assert float(t[0, -1].max()) < 0.1
 
 
 def test_lookup_table_hits_texel_centres_and_clamps():
