@@ -63,23 +63,30 @@ def _grid(size: int) -> Tensor:
     return (torch.arange(size, dtype=torch.float64) + 0.5) / size
 
 
+def _lobe_samples(pts: Tensor, nv: Tensor, rough: float) -> tuple[Tensor, Tensor, Tensor]:
+    """GGX half-vector samples ``pts [N, 2]`` of roughness ``rough`` reflected about views at
+    ``nv [S]`` (n = z, v in the xz plane): directions ``l [N, S, 3]``, ``v.h [N, S]`` and the
+    weight f_s cos / pdf without Fresnel, Vis 4 (v.h) (n.l) / (n.h) (D cancels), zero below the
+    horizon.  What the tables over (R, n.v) integrate."""
+    r = torch.tensor(rough, dtype=torch.float64)
+    v = torch.stack((torch.sqrt(1 - nv * nv), torch.zeros_like(nv), nv), -1)  # [S, 3]
+    h = ggx_half_vector(pts, alpha_from_roughness(r))[:, None]  # [N, 1, 3]
+    vh = (h * v).sum(-1)  # [N, S]
+    l = 2 * vh[..., None] * h - v
+    nl = l[..., 2]
+    w = torch.where(nl > 0, visibility(nl, nv, r) * 4 * vh * nl / h[..., 2], torch.zeros_like(nl))
+    return l, vh, w
+
+
 @lru_cache(maxsize=8)
 def _dfg_cpu(size: int, samples: int) -> Tensor:
-    nv = _grid(size)[:, None]  # [nv, 1]
     pts = hammersley(samples, 2, dtype=torch.float64)  # [N, 2]
-    v = torch.stack((torch.sqrt(1 - nv * nv), torch.zeros_like(nv), nv), -1)  # [nv, 1, 3]
     out = torch.empty(2, size, size, dtype=torch.float64)
     for i, r in enumerate(_grid(size).tolist()):
-        rough = torch.tensor(r, dtype=torch.float64)
-        h = ggx_half_vector(pts, alpha_from_roughness(rough))  # [N, 3]
-        vh = (v * h).sum(-1)  # [nv, N]
-        nl = 2 * vh * h[:, 2] - v[..., 2]
-        nh = h[:, 2]
-        # f_s cos / pdf with D cancelled: Vis 4 (v.h) (n.l) / (n.h)
-        w = torch.where(nl > 0, visibility(nl, nv, rough) * 4 * vh * nl / nh, torch.zeros_like(nl))
+        _, vh, w = _lobe_samples(pts, _grid(size), r)
         fc = fresnel_ue4(vh, torch.zeros_like(vh))
-        out[0, i] = ((1 - fc) * w).mean(-1)
-        out[1, i] = (fc * w).mean(-1)
+        out[0, i] = ((1 - fc) * w).mean(0)
+        out[1, i] = (fc * w).mean(0)
     return out
 
 
@@ -149,19 +156,11 @@ def _kernel_alpha(width: Tensor, samples: int) -> Tensor:
 @lru_cache(maxsize=4)
 def _lobe_shape_cpu(size: int, samples: int, f0: float) -> Tensor:
     pts = hammersley(samples, 2, dtype=torch.float64)
-    nv = _grid(size)
-    v = torch.stack((torch.sqrt(1 - nv * nv), torch.zeros_like(nv), nv), -1)  # [S, 3]
-    th_r = torch.acos(nv)
+    th_r = torch.acos(_grid(size))
     out = torch.empty(3, size, size, dtype=torch.float64)
     for i, r in enumerate(_grid(size).tolist()):
-        rough = torch.tensor(r, dtype=torch.float64)
-        h = ggx_half_vector(pts, alpha_from_roughness(rough))[:, None]  # [N, 1, 3]
-        vh = (h * v).sum(-1)  # [N, S]
-        l = 2 * vh[..., None] * h - v  # [N, S, 3]
-        nl = l[..., 2]
-        # f_s cos / pdf (D cancels)
-        w = torch.where(nl > 0, visibility(nl, nv, rough) * 4 * vh * nl / h[..., 2], torch.zeros_like(nl))
-        w = w * fresnel_ue4(vh, torch.full_like(vh, f0))
+        l, vh, w = _lobe_samples(pts, _grid(size), r)  # [N, S, 3], [N, S], [N, S]
+        w = w * fresnel_ue4(vh, torch.full_like(vh, f0))  # f_s cos / pdf
         m = (w[..., None] * l).sum(0)  # [S, 3]
         th = torch.atan2(-m[:, 0], m[:, 2])  # the mean direction's angle from n, toward r
         # normalize(lerp(n, r, f)) points at th: tan th = f sin th_r / (1 - f + f cos th_r)
