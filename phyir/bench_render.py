@@ -102,6 +102,17 @@ def _probes(g: torch.Generator, dirs: Tensor, depth: Tensor, Hp: int, Wp: int,
 # measuring
 
 PAPER_MS = 109.0  # rendering layer, 128x256, V100 (supplement Table 1)
+PREFILTERED_F32 = "prefiltered_f32"  # the prefiltered path with float32 level maps (bench row)
+
+
+def level_matmul(probes: Tensor) -> str:
+    """The dtype the prefiltered path's level matmul takes for ``probes [..., 3, h, w]`` when every
+    level is needed (:func:`phyir.prefilter.level_matmul_dtype`), as a name."""
+    from phyir import prefilter
+
+    h, w = probes.shape[-2:]
+    rows = sum(hl * wl for kind, hl, wl in prefilter._plan(h, w, prefilter.PREFILTER_ALPHAS) if kind == "map")
+    return str(prefilter.level_matmul_dtype(probes, rows * probes.numel())).removeprefix("torch.")
 
 
 def _sync(device: str) -> None:
@@ -261,11 +272,19 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
         f"{time.perf_counter() - t0:.1f} s, noise {ref.noise['image']:.1e} (image)")
     configs = [("prefiltered", 1)] + [("uniform", n) for n in cfg["uniform_spp"]] + \
         [("importance", n) for n in cfg["is_spp"]]
+    if level_matmul(scene.probes) != "float32":  # what the low-precision levels cost and save
+        configs.insert(1, (PREFILTERED_F32, 1))
 
     def make(method: str, spp: int) -> Callable[[], dict[str, Tensor]]:
         def call() -> dict[str, Tensor]:
-            if method == "prefiltered":
+            if method.startswith("prefiltered"):
                 prefilter._cache.clear()  # time the prefiltering too, every call
+            if method == PREFILTERED_F32:
+                old, prefilter.LEVEL_PRECISION = prefilter.LEVEL_PRECISION, "float32"
+                try:
+                    return render_scene(scene, method="prefiltered")
+                finally:
+                    prefilter.LEVEL_PRECISION = old
             return render_scene(scene, spp=spp, method=method, seed=7)
         return call
 
@@ -286,7 +305,8 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
     rows = []
     for c in configs:
         method, spp = c
-        row = {"method": method, "spp": spp if method != "prefiltered" else 0, **times[c], **errors[c]}
+        row = {"method": method, "spp": spp if not method.startswith("prefiltered") else 0, **times[c],
+               **errors[c]}
         rows.append(row)
         log(f"  {method:<12} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f} specular {row['err_specular']:.4f}")
@@ -621,13 +641,15 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
 def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     H, W = cfg["size"]
     result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),
-                               "torch": torch.__version__, "loadavg_start": os.getloadavg()},
+                               "torch": torch.__version__,
+                               "loadavg_start": os.getloadavg()},
                     "scenes": {}}
     for kind in ("glossy", "metal"):
         b, (ph, pw) = cfg["block"], cfg["probe"]
         log(f"render bench: scene {kind} {H}x{W}, probe per {b}x{b} pixels "
             f"({H // b}x{W // b} probes of {ph}x{pw}) on {device}")
         sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"]).to(device)
+        result["config"]["level_matmul"] = level_matmul(sc.probes)
         res = bench_methods(sc, cfg, device, log)
         res["summary"] = summarize(res)
         if cfg.get("seeds", 1) > 1:
@@ -654,6 +676,7 @@ def format_table(result: dict) -> str:
     """The printed / documented tables (markdown)."""
     cfg = result["config"]
     lines = [f"device {cfg['device']}, {cfg['threads']} thread(s), {cfg['size'][0]}x{cfg['size'][1]}, "
+             f"prefiltered level matmul in {cfg.get('level_matmul', 'float32')}, "
              f"load average {cfg['loadavg_start'][0]:.1f} -> {cfg['loadavg_end'][0]:.1f}", ""]
     for kind, res in result["scenes"].items():
         lines += [f"scene {kind} (reference {res['reference_spp']} spp, noise "
@@ -757,6 +780,8 @@ def plot(result: dict, path: Path) -> None:
                                 xytext=(3, 3), textcoords="offset points")
             p = next(r for r in res["rows"] if r["method"] == "prefiltered")
             ax.plot([p["median_s"] * 1e3], [p[key]], "r*", ms=12, label="prefiltered")
+            for q in (r for r in res["rows"] if r["method"] == PREFILTERED_F32):
+                ax.plot([q["median_s"] * 1e3], [q[key]], "kx", ms=9, label="prefiltered, float32 levels")
             ax.set(xscale="log", yscale="log", xlabel="time per image (ms, median)",
                    ylabel=f"relative RMSE ({layer})",
                    title=f"{kind}: {layer} ({cfg['size'][0]}x{cfg['size'][1]}, {cfg['device']})")

@@ -53,7 +53,9 @@ Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/ren
              cosine lobe there instead (no time saved, less noise).
 
 Precision: the layer always computes in float32 (float64 if given float64) with autocast disabled,
-because GGX at R = 0 spans ~1e12 in value and gradient, beyond float16/bfloat16.
+because GGX at R = 0 spans ~1e12 in value and gradient, beyond float16/bfloat16 — except the
+prefiltered level maps' matmul, a normalised non-negative filter of radiance, which takes bfloat16
+on CPUs that multiply it natively (:data:`phyir.prefilter.LEVEL_PRECISION`).
 """
 
 from __future__ import annotations
@@ -100,6 +102,10 @@ ROUGH_SPLIT = (1, 0, 1)
 # follows radiance x cosine; metals: GGX.
 FIRST = {"std": 2, "spec": 1, "rough": 2}
 CHUNK_SAMPLES = 1 << 17  # samples (pixels x spp) per chunk: bounds memory to ~100 MB per chunk
+# entries of a chunk's per-pixel environment-sampling tables (pixels x grid nodes; 1820 pixels for
+# 16 x 32 probes): at low spp CHUNK_SAMPLES alone let them grow to 150 MB, and importance sampling
+# ran 2-3x slower at 1-16 spp (docs/rendering.md, "Chunks"); results don't depend on chunking
+ENV_TABLE_ENTRIES = 1 << 21
 _POLE_EPS = 1e-6
 
 
@@ -479,6 +485,8 @@ def _shade_mc(px: _Pixels, light: _Lighting, spp: int, method: str, seed: int, s
         if idx is None or idx.numel() == 0:
             continue
         chunk = max(1, CHUNK_SAMPLES // max(n_d + n_s + n_e, 1))
+        if n_e and env is not None:  # the per-pixel sampling tables, not the samples, fill the cache
+            chunk = min(chunk, max(1, ENV_TABLE_ENTRIES // ((env.h + 2) * env.w * env.k)))
         for c0 in range(0, idx.numel(), chunk):
             ci = idx[c0:c0 + chunk]
             if sampler == "random":
