@@ -308,7 +308,7 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
         row = {"method": method, "spp": spp if not method.startswith("prefiltered") else 0, **times[c],
                **errors[c]}
         rows.append(row)
-        log(f"  {method:<12} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
+        log(f"  {method:<15} spp {row['spp']:>4}  {row['median_s'] * 1e3:9.1f} ms  "
             f"err image {row['err_image']:.4f} specular {row['err_specular']:.4f}")
     return {"reference_spp": cfg["ref_spp"], "reference_noise": ref.noise, "rows": rows,
             "prefiltered_breakdown": breakdown}
@@ -641,8 +641,7 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
 def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     H, W = cfg["size"]
     result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),
-                               "torch": torch.__version__,
-                               "loadavg_start": os.getloadavg()},
+                               "torch": torch.__version__, "loadavg_start": os.getloadavg()},
                     "scenes": {}}
     for kind in ("glossy", "metal"):
         b, (ph, pw) = cfg["block"], cfg["probe"]
