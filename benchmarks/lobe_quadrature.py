@@ -147,16 +147,9 @@ def light_in_lobe(scene) -> tuple[Tensor, Tensor]:
     taps = torch.stack(render._lobe_taps(n, v, shape[:, 0], shape[:, 1]), 1)
     uv = render._unit_uv(taps)
     ones = torch.ones(len(idx), dtype=n.dtype)
-    levels = []
-    for lvl, (kind, hl, wl) in enumerate(pf.plan):
-        if kind == "sh":
-            sh = pf.sh.permute(1, 2, 0).reshape(light.probes.shape[0], -1)
-            levels.append(render._sh_radiance(sh, index, weight, taps))
-        elif kind == "probe":
-            levels.append(render._lookup(light.probes, hl, wl, index, weight, uv, ones, planes=True))
-        else:
-            levels.append(render._lookup(pf.maps[lvl], hl, wl, index, weight, uv, ones))
-    lv = torch.stack(levels, 1).mean(-1)  # [p, levels]
+    sh = pf.sh.permute(1, 2, 0).reshape(light.probes.shape[0], -1)
+    lv = torch.stack([render._level_radiance(pf, light.probes, sh, lvl, index, weight, taps, uv, ones)
+                      for lvl in range(len(pf.plan))], 1).mean(-1)  # [p, levels]
     ar = torch.arange(len(idx))
     alb = prefilter.specular_albedo(nv, rough[:, 0], f0).mean(-1)
     return idx, alb * torch.maximum(lv[ar, i0], lv[ar, i0 + 1])

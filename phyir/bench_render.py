@@ -110,8 +110,7 @@ def level_matmul(probes: Tensor) -> str:
     level is needed (:func:`phyir.prefilter.level_matmul_dtype`), as a name."""
     from phyir import prefilter
 
-    h, w = probes.shape[-2:]
-    rows = sum(hl * wl for kind, hl, wl in prefilter._plan(h, w, prefilter.PREFILTER_ALPHAS) if kind == "map")
+    rows = prefilter.map_rows(*probes.shape[-2:])
     return str(prefilter.level_matmul_dtype(probes, rows * probes.numel())).removeprefix("torch.")
 
 

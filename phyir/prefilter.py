@@ -343,6 +343,20 @@ def _plan(h: int, w: int, alphas: tuple[float, ...]) -> list[tuple[str, int, int
     return out
 
 
+def _takes_map(plan: list[tuple[str, int, int]], need: tuple[int, ...]) -> list[bool]:
+    """Per level of ``plan``: whether it is a map level in ``need`` (a block of operator rows)."""
+    return [kind == "map" and i in need for i, (kind, _, _) in enumerate(plan)]
+
+
+def map_rows(h: int, w: int, alphas: tuple[float, ...] = PREFILTER_ALPHAS,
+             need: tuple[int, ...] | None = None) -> int:
+    """Rows (level texels) of the map levels ``need`` (default all) for ``h x w`` probes: with the
+    probes' size, the multiply-adds of the maps' matmul per probe channel."""
+    plan = _plan(h, w, alphas)
+    need = tuple(range(len(alphas))) if need is None else need
+    return sum(hl * wl for t, (_, hl, wl) in zip(_takes_map(plan, need), plan) if t)
+
+
 @lru_cache(maxsize=16)
 def _stacked_operator_cpu(h: int, w: int, alphas: tuple[float, ...], need: tuple[int, ...]) -> Tensor:
     """Rows of the needed map levels, then the SH projection (if level "sh" or -1 is needed)."""
@@ -400,8 +414,8 @@ class Prefiltered:
         op = _stacked_operator_cpu(h, w, self.alphas, self.need)
         x = env.reshape(-1, h * w)
         N = x.shape[0] // 3
-        take = [kind == "map" and i in self.need for i, (kind, _, _) in enumerate(self.plan)]
-        n_map = sum(hl * wl for t, (_, hl, wl) in zip(take, self.plan) if t)
+        take = _takes_map(self.plan, self.need)
+        n_map = map_rows(h, w, self.alphas, self.need)
         low = level_matmul_dtype(env, n_map * x.numel())
         if low == env.dtype:  # one matmul, its rows already (texel, probe, channel)
             out = (op.to(device=env.device, dtype=env.dtype) @ x.T).reshape(op.shape[0], N, 3)

@@ -603,6 +603,19 @@ def _lookup(table: Tensor, h: int, w: int, index: Tensor, weight: Tensor, uv: tu
     return _mix(table.reshape(-1).as_strided((table.numel() - 2 * h * w, 3), (1, h * w)), idx, wgt)
 
 
+def _level_radiance(pf: prefilter.Prefiltered, probes: Tensor, sh: Tensor | None, level: int, index: Tensor,
+                    weight: Tensor, taps: Tensor, uv: tuple[Tensor, Tensor], scale: Tensor) -> Tensor:
+    """``scale x`` the mean radiance ``[p, 3]`` of prefiltered level ``level`` at the look-up
+    directions ``taps [p, T, 3]`` (``uv`` their :func:`_unit_uv`) of the pixels' probe mixtures
+    ``index/weight``: the probes themselves, a map, or the SH irradiance (``sh [N, 3*K]``)."""
+    kind, hl, wl = pf.plan[level]
+    if kind == "sh":
+        return scale[:, None] * _sh_radiance(sh, index, weight, taps)
+    if kind == "probe":
+        return _lookup(probes, hl, wl, index, weight, uv, scale, planes=True)
+    return _lookup(pf.maps[level], hl, wl, index, weight, uv, scale)
+
+
 def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     P = px.n.shape[0]
     dev, dt = px.n.device, px.n.dtype
@@ -630,15 +643,10 @@ def _shade_prefiltered(px: _Pixels, light: _Lighting) -> tuple[Tensor, Tensor]:
     uv = _unit_uv(taps)  # one direction -> texel mapping for every level
 
     def look(level: int, rows: Tensor | None) -> Tensor:
-        kind, hl, wl = pf.plan[level]
-        ii, ww = (index, weight) if rows is None else (index[rows], weight[rows])
-        scale = level_w[level] if rows is None else level_w[level][rows]
-        if kind == "sh":
-            return scale[:, None] * _sh_radiance(sh, ii, ww, taps if rows is None else taps[rows])
-        uvr = uv if rows is None else (uv[0][rows], uv[1][rows])
-        if kind == "probe":
-            return _lookup(light.probes, hl, wl, ii, ww, uvr, scale, planes=True)
-        return _lookup(pf.maps[level], hl, wl, ii, ww, uvr, scale)
+        if rows is None:
+            return _level_radiance(pf, light.probes, sh, level, index, weight, taps, uv, level_w[level])
+        return _level_radiance(pf, light.probes, sh, level, index[rows], weight[rows], taps[rows],
+                               (uv[0][rows], uv[1][rows]), level_w[level][rows])
 
     diffuse = torch.zeros_like(rho)
     if lit.numel():
