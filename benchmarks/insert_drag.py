@@ -3,7 +3,7 @@ the bare panorama frame measured in the same run (software GL on this machine: M
 
     .venv/bin/python benchmarks/insert_drag.py [--scene FILE] [--frames 20] [--out benchmarks/results]
 
-Each dragging frame moves the object along the floor (phyir.placement.Drag, as a mouse drag does),
+Each dragging frame moves the object along the floor (phyir.insert.placement.Drag, as a mouse drag does),
 recomputes its lighting (probe interpolation, lights, irradiance) and redraws impostor, shadow maps
 and composite at the DRAGGING quality; the still frame redraws at FULL quality with cached lighting.
 Times are medians of ``--frames`` frames, each ended by ``ctx.finish()``; bare and dragging frames
@@ -48,10 +48,11 @@ def main() -> int:
     import trimesh
 
     import viewer.insertion
-    from phyir import pano, placement
+    from phyir import pano
+    from phyir.insert import placement
+    from phyir.insert.objects import PRESETS, SceneObject, load_mesh
     from phyir.io import load_scene
     from viewer.insertion import InsertionPass, InsertionRenderer
-    from viewer.objects import PRESETS, SceneObject, load_mesh
     from viewer.renderer import Display, Frame, Renderer
     from viewer.view import EquirectView
 

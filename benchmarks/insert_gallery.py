@@ -103,7 +103,8 @@ def floor_spots(scene, n: int, spacing: float = 0.45, clearance: float = 0.3, he
     """
     import torch
 
-    from phyir import pano, placement
+    from phyir import pano
+    from phyir.insert import placement
 
     H, W = scene.size
     s = max(1, H // rows)
@@ -202,11 +203,11 @@ def main() -> int:
     import numpy as np
     from PIL import Image
 
-    from phyir import placement
     from phyir.cli import main as cli
+    from phyir.insert import placement
+    from phyir.insert.objects import PRESETS, SceneObject, load_mesh, parse_material, primitive
     from viewer.export import load_input, tonemap
     from viewer.insertion import FULL, InsertionRenderer
-    from viewer.objects import PRESETS, SceneObject, load_mesh, parse_material, primitive
     from viewer.view import EquirectView
 
     names = ["diffuse", "matte-silver", "mirror-silver", "vase"]

@@ -4,7 +4,7 @@
 
 For each real panorama in ../shared/panos (downsampled to a 16 x 32 probe) and the tests' procedural
 lamp probe, a sphere of each material is shaded by shaders/ibl.glsl (viewer.insertion
-.InsertionRenderer.shade_gbuffer, ``--samples`` GGX samples) and by phyir.render.shade_env
+.InsertionRenderer.shade_gbuffer, ``--samples`` GGX samples) and by phyir.shading.render.shade_env
 (importance sampling, ``--spp``); prints the relative L1 difference and the split-sum baseline
 (shade_env method="prefiltered") for comparison.  Writes benchmarks/results/insert_spheres.json.
 """
@@ -34,9 +34,9 @@ def main() -> int:
     import torch
 
     from phyir import io, pano
+    from phyir.insert.objects import PRESETS
     from phyir.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from viewer.insertion import InsertionRenderer
-    from viewer.objects import PRESETS
 
     probes = {}
     try:

@@ -1,4 +1,4 @@
-"""GPU insertion against the path tracer: a sphere added to a synthetic room (phyir.insert_reference).
+"""GPU insertion against the path tracer: a sphere added to a synthetic room (phyir.insert.reference).
 
     .venv/bin/python benchmarks/insert_vs_pathtrace.py [--seed 2022 --index 0] [--size 128x256]
         [--spp 64 --ref-spp 256] [--out benchmarks/results] [--image docs/img/insert_vs_pathtrace.png]
@@ -50,12 +50,12 @@ def main() -> int:
     from PIL import Image
 
     from phyir import pano
-    from phyir.insert_reference import sphere_mask, trace_reference
-    from phyir.lights_extract import luminance
+    from phyir.insert.objects import PRESETS, SceneObject, primitive
+    from phyir.insert.reference import sphere_mask, trace_reference
+    from phyir.lighting.extract import luminance
     from phyir.metrics import RELIGHT_MATERIALS
     from viewer.export import tonemap
     from viewer.insertion import FULL, InsertionRenderer
-    from viewer.objects import PRESETS, SceneObject, primitive
     from viewer.view import EquirectView
 
     H, W = (int(x) for x in args.size.split("x"))

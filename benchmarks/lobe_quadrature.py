@@ -32,10 +32,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from phyir import pano, prefilter, render
-from phyir.bench_render import Reference, _shaded_mask, bench_scene
-from phyir.brdf import alpha_from_roughness, f0_from_material, fresnel_ue4, ggx_d, visibility
-from phyir.sampling import ggx_half_vector, local_to_world, point_set, reflect
+from phyir import pano
+from phyir.bench.render import Reference, _shaded_mask, bench_scene
+from phyir.shading import prefilter, render
+from phyir.shading.brdf import alpha_from_roughness, f0_from_material, fresnel_ue4, ggx_d, visibility
+from phyir.shading.sampling import ggx_half_vector, local_to_world, point_set, reflect
 
 
 def _cpu_ms(fn: Callable[[], object], n: int = 5) -> float:
@@ -211,7 +212,7 @@ def _against_importance(path: str, kind: str, seed: int, err_pct: float, ms: flo
     curve; CPU time at that spp from its seed-0 timing curve) against ``ms``."""
     import json
 
-    from phyir.bench_render import _interp_time, _loglog
+    from phyir.bench.render import _interp_time, _loglog
 
     res = json.loads(open(path).read())["scenes"][kind]
     row = next((r for r in res["seeds"]["rows"] if r["seed"] == seed), None)

@@ -7,7 +7,7 @@ For each scene (128x256, a probe per 2x2 pixels, probes of 16x32) it prints the 
 * ``fine levels``: the same with 14 levels (alpha 0, 0.02, ..., 1) at the probes' full resolution:
   what finer prefiltering alone can buy;
 * ``ideal split sum``: every pixel's radiance weighted by the exact prefilter kernels of the
-  renderer's two look-ups (directions and alpha from :func:`phyir.prefilter.lobe_shape_table`;
+  renderer's two look-ups (directions and alpha from :func:`phyir.shading.prefilter.lobe_shape_table`;
   quadrature of the probes' bilinear interpolant, 4x4 points per texel), times the DFG albedo: the
   split sum without any level, resolution or interpolation error, i.e. the floor of the
   approximation (two isotropic kernels standing in for the lobe, the BRDF's weight pulled out);
@@ -29,10 +29,10 @@ import argparse
 
 import torch
 
-from phyir import prefilter, render
-from phyir.bench_render import Reference, _shaded_mask, bench_scene
-from phyir.brdf import brdf_vectors
-from phyir.object_lighting import _quadrature
+from phyir.bench.render import Reference, _shaded_mask, bench_scene
+from phyir.lighting.object_lighting import _quadrature
+from phyir.shading import prefilter, render
+from phyir.shading.brdf import brdf_vectors
 
 FINE_ALPHAS = (0.0, 0.02, 0.05, 0.08, 0.12, 0.16, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 SUPER = 16
@@ -59,7 +59,7 @@ def _lookups(n: torch.Tensor, v: torch.Tensor, rough: torch.Tensor, f0: torch.Te
 
 def _ideal_split_sum(scene, px, light, diffuse: torch.Tensor, chunk: int = 512) -> dict:
     """Layers with the ideal split sum as the specular (``px``, ``light``: the scene's
-    :func:`phyir.render._scene_inputs`; ``diffuse``: the renderer's)."""
+    :func:`phyir.shading.render._scene_inputs`; ``diffuse``: the renderer's)."""
     d, weights = prefilter._fine_grid(*light.probes.shape[-2:])  # directions, solid angle x taps
     d, weights = d.to(px.n.dtype), weights.to(px.n.dtype)
     nv = (px.n * px.v).sum(-1)

@@ -4,7 +4,7 @@ of ``phyir bench render``'s glossy and metal scenes (128x256, a probe per 2x2 pi
 
 * ``mirror``: one look-up in the mirror direction with the surface's own alpha (Karis 2013);
 * ``lobe-shaped``: the renderer's two look-ups around the lobe's mean direction, with the alpha of
-  the lobe's width across the plane of n and v (:func:`phyir.prefilter.lobe_shape_table`).
+  the lobe's width across the plane of n and v (:func:`phyir.shading.prefilter.lobe_shape_table`).
 
     .venv/bin/python benchmarks/split_sum_lookup.py [--seeds 0 1 2 3 4 5] [--ref-spp 1024]
 
@@ -17,8 +17,8 @@ import argparse
 
 import torch
 
-from phyir import render
-from phyir.bench_render import Reference, _shaded_mask, bench_scene
+from phyir.bench.render import Reference, _shaded_mask, bench_scene
+from phyir.shading import render
 
 
 def _mirror_lookup(nv: torch.Tensor, rough: torch.Tensor, f0: torch.Tensor) -> torch.Tensor:

@@ -7,7 +7,8 @@
   random ground-truth probe cells (the same cells for every method), with
 
   - ``lnet``: LNet's grid, bilinear at the cell's predicted 3D position,
-  - ``projection``: :mod:`phyir.projection` from the predicted depth, LNet where the camera did not see,
+  - ``projection``: :mod:`phyir.lighting.projection` from the predicted depth, LNet where the camera did
+    not see,
   - ``projection_gt_geometry``: the same from the ground-truth depth (the projection itself, without
     the depth network's error),
   - ``constant``: a trivial baseline (depth 3 m, normals facing the camera, base colour 0.5,
@@ -72,7 +73,7 @@ def evaluate_pair(pred: PanoScene, gt: PanoScene, *, relight: int = 16, spp: int
     """Every metric the two scenes allow; probes count when both have the same grid and probe size."""
     out = pixel_metrics(pred, gt)
     if pred.probes is not None and gt.probes is not None and pred.probes.shape == gt.probes.shape:
-        from phyir.projection import probe_positions
+        from phyir.lighting.projection import probe_positions
 
         pos = probe_positions(gt.depth, gt.normal, gt.probe_grid).reshape(-1, 3) if gt.depth is not None \
             else None
@@ -110,9 +111,9 @@ def dataset_means(root: str | os.PathLike, split: str = "train",
                   limit: int | None = 200) -> dict[str, Tensor]:
     """Per-dataset means of the ``split`` (first ``limit`` scenes) for :func:`means_baseline`: depth,
     base colour [3], roughness, metalness (over non-emissive pixels) and the mean probe [3,h,w] of
-    exposure-normalised scenes (:func:`phyir.data.exposure_scale`)."""
-    from phyir.data import exposure_scale, split_files
+    exposure-normalised scenes (:func:`phyir.learn.datasets.exposure_scale`)."""
     from phyir.io import load_scene
+    from phyir.learn.datasets import exposure_scale, split_files
 
     acc: dict[str, Tensor] = {}
     n_pix = n_mat = n_probe = 0
@@ -142,7 +143,7 @@ def means_baseline(gt: PanoScene, means: dict[str, Tensor]) -> PanoScene:
     """The dataset-means predictor: the training set's mean depth, base colour, roughness and
     metalness everywhere, normals facing the camera, every probe the mean (exposure-normalised) probe
     brought to this image's exposure."""
-    from phyir.data import exposure_scale
+    from phyir.learn.datasets import exposure_scale
 
     H, W = gt.size
     probes = None
@@ -164,10 +165,10 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
     ``constant``, ``dataset_means``) averaged over the scenes of ``split``; see the module doc.
     ``model/lnet`` also has ``predict_seconds``: the mean time of :func:`phyir.predict` per scene
     (LNet lighting)."""
-    from phyir.data import split_files
     from phyir.inference import lnet_probes_at, predict
     from phyir.io import load_scene
-    from phyir.projection import DepthSurface, probe_positions, project_probes
+    from phyir.learn.datasets import split_files
+    from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
 
     root = Path(root)
     files = split_files(root, split, limit)
@@ -242,7 +243,7 @@ def margins(model: M.MetricMeter, base: M.MetricMeter) -> dict[str, float]:
 
 def read_manifest_has(root: str | os.PathLike, split: str) -> bool:
     """Whether the dataset's manifest lists any ``split`` scene that exists."""
-    from phyir.data import read_manifest
+    from phyir.learn.datasets import read_manifest
 
     return any((Path(root) / f).is_file() for f in read_manifest(root)[split])
 

@@ -8,7 +8,7 @@ returns probes in the input's radiometric units:
    wanted layer is missing from the input, or when LNet needs GMNet's layers as its inputs;
 2. LNet predicts a probe grid;
 3. with ``lighting="projection"`` each probe is re-read from the panorama itself where the camera saw
-   the surface its texels look at (:mod:`phyir.projection`), LNet's probe filling in the rest.
+   the surface its texels look at (:mod:`phyir.lighting.projection`), LNet's probe filling in the rest.
    The default (:data:`DEFAULT_LIGHTING`) is LNet alone: with the shipped weights it measured better
    on the synthetic test split (README, "The model").
 
@@ -67,7 +67,7 @@ def load_cached_model(weights: str | os.PathLike | None = None, device: str | to
     ``net_size`` is the resolution the weights were trained at (their sidecar's ``data.resolution``),
     or :data:`DEFAULT_NET_SIZE`.
     """
-    from phyir.weights import default_weights_path, load_model, sidecar_path
+    from phyir.learn.weights import default_weights_path, load_model, sidecar_path
 
     path = Path(weights) if weights is not None else default_weights_path()
     if weights is None and not path.exists():
@@ -140,7 +140,8 @@ def load_input(source: str | os.PathLike | Tensor | PanoScene,
 
 def _header_size(path: str | os.PathLike) -> tuple[int, int]:
     """(H, W) of an image or scene file from its header (the main part's, for OpenEXR)."""
-    from phyir import exr, io, ldr, rgbe
+    from phyir import io
+    from phyir.io import exr, ldr, rgbe
 
     fmt = io.sniff(path)
     if fmt == "exr":
@@ -185,7 +186,7 @@ def guided_upsample(src: Tensor, guide_lo: Tensor, guide_hi: Tensor, r: int = GU
 
 
 def _guide(image: Tensor) -> Tensor:
-    from phyir.data import luminance
+    from phyir.learn.datasets import luminance
 
     return torch.log1p(luminance(image.clamp_min(0)))[None]
 
@@ -294,7 +295,7 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
             trained = DEFAULT_NET_SIZE
         t = step("model", t, 0.1)
         Hn, Wn = net_size or net_size_for(H, trained)
-        from phyir.data import exposure_scale
+        from phyir.learn.datasets import exposure_scale
 
         img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
         x = pano.resize_area(img, Hn, Wn).to(dev)
@@ -352,7 +353,7 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
                                    normal=geo.get("normal", out.normal))
         if probes == "grid":
             if lighting == "projection":
-                from phyir.projection import projected_probe_grid
+                from phyir.lighting.projection import projected_probe_grid
 
                 out.probes = projected_probe_grid(proj_scene, lnet_grid * s) / s
             else:
@@ -361,7 +362,7 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
             pts = points.reshape(-1, 3).float().cpu()
             fb = lnet_probes_at(lnet_grid, pts)
             if lighting == "projection":
-                from phyir.projection import project_probes
+                from phyir.lighting.projection import project_probes
 
                 fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb * s)[0] / s
             out.probes = fb[:, None]

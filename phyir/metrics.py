@@ -282,11 +282,11 @@ def render_spheres(probes: Tensor, view_dir: Tensor, material: str, *, size: int
     """Images ``[N,3,S,S]`` of a sphere of a Table 2 ``material`` lit by each probe ``[N,3,h,w]``.
 
     Each sphere is small compared with the room, so the single probe at its centre lights it all.
-    Shading is :func:`phyir.render.shade_env` (the renderer's image-based lighting, ``method`` and
+    Shading is :func:`phyir.shading.render.shade_env` (the renderer's image-based lighting, ``method`` and
     ``spp`` as there; the mirror sphere is one reflected look-up per pixel); pixels outside the disk
     are zero.
     """
-    from phyir.render import shade_env  # the renderer owns image-based lighting
+    from phyir.shading.render import shade_env  # the renderer owns image-based lighting
 
     base, rough, metal = RELIGHT_MATERIALS[material]
     n, v, mask = sphere_gbuffer(view_dir.to(probes), size)

@@ -1,4 +1,4 @@
-"""Time projection-based probes (phyir.projection) for a probe grid on a real panorama.
+"""Time projection-based probes (phyir.lighting.projection) for a probe grid on a real panorama.
 
 The radiance is a real HDR panorama (../shared/panos, or --pano); the depth is that of a box room
 around the camera (the timing depends on the number of rays and marching steps, not on the content).
@@ -16,7 +16,7 @@ import torch
 
 from phyir import pano
 from phyir.io import load_panorama
-from phyir.projection import DepthSurface, probe_positions, project_probes
+from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
 from phyir.scene import PanoScene
 
 PANOS = Path(__file__).resolve().parents[2] / "shared" / "panos"

@@ -22,8 +22,8 @@ COLUMNS = ("input", "depth", "normal", "base colour", "roughness", "metalness", 
 
 def tonemap(x: torch.Tensor, scale: float) -> np.ndarray:
     """Linear radiance [3,H,W] -> sRGB uint8 [H,W,3] (exposure ``scale``, ACES curve)."""
-    from phyir.data import aces
-    from phyir.ldr import linear_to_srgb
+    from phyir.io.ldr import linear_to_srgb
+    from phyir.learn.datasets import aces
 
     y = linear_to_srgb(aces(x.float() * scale).numpy())
     return (np.clip(y, 0, 1) * 255 + 0.5).astype(np.uint8).transpose(1, 2, 0)
@@ -41,10 +41,10 @@ def colormap(x: torch.Tensor, name: str = "turbo", lo: float | None = None,
 
 
 def row(scene, render_spp: int) -> list[np.ndarray]:
-    from phyir.data import exposure_scale, resize_scene
-    from phyir.ldr import linear_to_srgb
+    from phyir.io.ldr import linear_to_srgb
+    from phyir.learn.datasets import exposure_scale, resize_scene
     from phyir.pano import resize_area
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     small = resize_scene(scene, *TILE)
     s = float(exposure_scale(small.image)) * 0.7

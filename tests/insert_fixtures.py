@@ -1,5 +1,5 @@
 """An analytic box room for the insertion tests: exact depth, normals and albedo, a ceiling lamp,
-probes read back from the panorama by projection (phyir.projection).
+probes read back from the panorama by projection (phyir.lighting.projection).
 
 Camera at the origin; room x in [-3, 3], y in [-1.5, 1.5] (floor at y = -1.5), z in [-4, 2]; a
 table box x in [-0.5, 0.5], y in [-1.5, -0.8], z in [-2.6, -1.6]; a lamp: a disc of radius 0.35 m
@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from phyir import pano
-from phyir.projection import projected_probe_grid
+from phyir.lighting.projection import projected_probe_grid
 from phyir.scene import PanoScene
 
 ROOM_LO, ROOM_HI = np.array([-3.0, -1.5, -4.0]), np.array([3.0, 1.5, 2.0])

@@ -21,11 +21,12 @@ from PIL import Image
 from test_bad_inputs import corpus_outcomes
 
 import phyir
-from phyir import exr, io, ldr, rgbe
+from phyir import io
 from phyir.cli import main as cli
 from phyir.errors import InputError
+from phyir.io import exr, ldr, rgbe
+from phyir.learn.weights import save_weights
 from phyir.nets import ModelConfig, PhyIRModel
-from phyir.weights import save_weights
 
 _threads = pytest.fixture(scope="module", autouse=True)(one_thread)
 trimesh = pytest.importorskip("trimesh")
@@ -66,7 +67,7 @@ def ply_binary(path, vertices, faces, declared_faces: int | None = None, sparse_
 def test_meshes_declaring_10m_faces_are_refused_from_the_header(tmp_path, monkeypatch):
     """10M triangles: ~120 MB of int32 indices (and ~5x that inside trimesh).  PLY, OFF and binary STL
     headers declare their face count: the limit is applied before any parsing."""
-    from viewer import objects
+    from phyir.insert import objects
 
     n = 10_000_000
     tri = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
@@ -94,7 +95,7 @@ def test_meshes_declaring_10m_faces_are_refused_from_the_header(tmp_path, monkey
 
 
 def test_empty_nan_and_non_manifold_binary_meshes(tmp_path):
-    from viewer.objects import load_mesh
+    from phyir.insert.objects import load_mesh
 
     tri = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
     with pytest.raises(InputError, match="no triangles") as e:
@@ -116,7 +117,7 @@ def test_empty_nan_and_non_manifold_binary_meshes(tmp_path):
 MESH_CHILD = r"""
 import json, sys
 from phyir.errors import InputError
-from viewer.objects import load_mesh
+from phyir.insert.objects import load_mesh
 for path in sys.argv[1:]:
     try:
         m = load_mesh(path)

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from phyir import bench_measure, bench_report
+from phyir.bench import measure as bench_measure
+from phyir.bench import report as bench_report
 from phyir.cli import main
 from phyir.commands import bench
 
@@ -80,7 +81,7 @@ def test_quick_report_complete_and_finite(quick_run):
 
 @pytest.mark.slow
 def test_quick_modules_numbers(quick_run):
-    from phyir.bench_modules import PARTS
+    from phyir.bench.modules import PARTS
 
     _, rep = quick_run
     e = rep["targets"]["modules"]
@@ -98,7 +99,7 @@ def test_quick_modules_numbers(quick_run):
 
 @pytest.mark.slow
 def test_quick_skips_numbers(quick_run):
-    from phyir.bench_skips import VARIANTS
+    from phyir.bench.skips import VARIANTS
 
     _, rep = quick_run
     rows = rep["targets"]["skips"]["result"]["predict"]["rows"]

@@ -41,7 +41,7 @@ def _check_written(out: Path, target: str, result: dict) -> dict:
 
 
 def test_noise_estimators_on_gaussian_noise():
-    from phyir.bench_synth import pair_noise, rel_l1
+    from phyir.bench.synth import pair_noise, rel_l1
 
     g = torch.Generator().manual_seed(0)
     sigma, n = 0.1, 400_000
@@ -59,7 +59,7 @@ def test_noise_estimators_on_gaussian_noise():
 
 @pytest.mark.slow
 def test_synth_quick(tmp_path):
-    from phyir import bench_synth
+    from phyir.bench import synth as bench_synth
 
     res = bench_synth.run_bench(tmp_path, quick=True, threads=1, log=lambda s: None)
     doc = _check_written(tmp_path, "synth", res)
@@ -80,9 +80,9 @@ def test_synth_quick(tmp_path):
 
 @pytest.mark.slow
 def test_model_quick(tmp_path, monkeypatch):
-    from phyir import bench_model
+    from phyir.bench import model as bench_model
+    from phyir.learn.weights import save_weights
     from phyir.nets.model import PhyIRModel
-    from phyir.weights import save_weights
 
     torch.manual_seed(3)
     weights = save_weights(PhyIRModel("lite"), tmp_path / "w" / "lite.safetensors")
@@ -134,7 +134,7 @@ def test_render_memory_is_measured_in_fresh_processes():
     """Each case runs in its own child, so a case measured after a bigger one is not hidden by the
     memory that one freed (in one process, prefiltered-forward after importance-backward read ~0 MB),
     and the peaks order as the algorithms do."""
-    from phyir.bench_render import memory_use
+    from phyir.bench.render import memory_use
 
     rows = {(r["method"], r["grad"]): r for r in memory_use(64, 128, 4, log=lambda s: None)}
     assert len(rows) == 4 and all(r["probes_mb"] == pytest.approx(12.0) for r in rows.values())

@@ -1,4 +1,4 @@
-"""The BRDF of supplement A.3 (phyir.brdf): formulas, reciprocity, positivity, energy, stability."""
+"""The BRDF of supplement A.3 (phyir.shading.brdf): formulas, reciprocity, positivity, energy, stability."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from phyir import brdf
+from phyir.shading import brdf
 
 
 def _unit(x: torch.Tensor) -> torch.Tensor:
@@ -118,7 +118,7 @@ def test_specular_albedo_at_most_one(R, M):
 
 
 def test_specular_albedo_table_at_most_one():
-    from phyir.prefilter import dfg_table
+    from phyir.shading.prefilter import dfg_table
 
     t = dfg_table()
     assert float(t.min()) >= 0

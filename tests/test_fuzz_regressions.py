@@ -1,4 +1,4 @@
-"""The file-reader fuzzer (``python -m phyir.fuzz``, docs/robustness.md#fuzzing): the command runs and
+"""The file-reader fuzzer (``python -m phyir.io.fuzz``, docs/robustness.md#fuzzing): the command runs and
 finds new coverage, its outcome classification, and the inputs it found that broke a reader."""
 
 from __future__ import annotations
@@ -12,14 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from phyir import fuzz
+from phyir.io import fuzz
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def run_fuzzer(tmp_path: Path, *args: str, timeout: float = 240) -> tuple[int, dict, str]:
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
-    p = subprocess.run([sys.executable, "-m", "phyir.fuzz", "--out", str(tmp_path), *args], cwd=REPO, env=env,
+    p = subprocess.run([sys.executable, "-m", "phyir.io.fuzz", "--out", str(tmp_path), *args], cwd=REPO,
+                       env=env,
                        capture_output=True, text=True, timeout=timeout)
     report = json.loads((tmp_path / "report.json").read_text()) if (tmp_path / "report.json").exists() else {}
     return p.returncode, report, p.stdout + p.stderr
@@ -96,7 +97,7 @@ def test_mutations_are_seeded_and_bounded():
 def test_obj_vertices_without_three_coordinates_are_refused(tmp_path, text):
     """Found by the mesh target (ValueError from numpy, not an InputError): now a one-line refusal."""
     from phyir.errors import InputError
-    from viewer.objects import load_mesh
+    from phyir.insert.objects import load_mesh
 
     p = tmp_path / "bad.obj"
     p.write_bytes(text)

@@ -48,7 +48,7 @@ def screen_of(app, point: np.ndarray) -> tuple[float, float]:
 
 
 def test_add_drag_layers_delete_and_export(app, tmp_path):
-    from viewer.objects import PRESETS
+    from phyir.insert.objects import PRESETS
 
     panel = app.objects
     before = view_pixels(app)
@@ -90,7 +90,7 @@ def test_add_drag_layers_delete_and_export(app, tmp_path):
 
 
 def test_click_to_drop_takes_the_click_from_the_probe_pin(app):
-    from viewer.objects import PRESETS
+    from phyir.insert.objects import PRESETS
 
     panel = app.objects
     panel.add("cube", PRESETS["diffuse"], 0.2, at=(64.5, 50.5))
@@ -109,7 +109,7 @@ def test_panel_and_gizmo_build_in_a_frame(app, monkeypatch):
     """The Objects panel and the gizmo go through imgui in a real frame without errors."""
     from imgui_bundle import imgui
 
-    from viewer.objects import PRESETS
+    from phyir.insert.objects import PRESETS
 
     panel = app.objects
     panel.add("cylinder", PRESETS["mirror-silver"], 0.2, at=(50.5, 50.5))

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from insert_fixtures import box_room
 
-from phyir import exr
 from phyir.cli import main
-from phyir.io import save_panorama, save_scene
+from phyir.io import exr, save_panorama, save_scene
 
 moderngl = pytest.importorskip("moderngl")
 

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from insert_fixtures import box_room
 
-from phyir import placement
+from phyir.insert import placement
 
 moderngl = pytest.importorskip("moderngl")
 trimesh = pytest.importorskip("trimesh")
 
+from phyir.insert.objects import PRESETS, SceneObject, _finish  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
-from viewer.objects import PRESETS, SceneObject, _finish  # noqa: E402
 from viewer.view import EquirectView  # noqa: E402
 
 pytestmark = pytest.mark.gl

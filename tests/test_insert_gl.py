@@ -1,7 +1,7 @@
 """GLSL insertion shading and compositing, headless through EGL (skipped without a GL context).
 
-The references are the torch implementations: ``phyir.brdf`` for ``shaders/brdf.glsl`` and converged
-``phyir.render.shade_env`` (importance sampling, 2048 spp) for the object shading of the three
+The references are the torch implementations: ``phyir.shading.brdf`` for ``shaders/brdf.glsl`` and converged
+``phyir.shading.render.shade_env`` (importance sampling, 2048 spp) for the object shading of the three
 spheres of the supplement's Table 2.
 """
 
@@ -15,15 +15,17 @@ import pytest
 import torch
 from insert_fixtures import TABLE_HI, TABLE_LO, box_room
 
-from phyir import brdf, pano, placement
+from phyir import pano
+from phyir.insert import placement
 from phyir.metrics import RELIGHT_MATERIALS, sphere_gbuffer
-from phyir.render import shade_env
+from phyir.shading import brdf
+from phyir.shading.render import shade_env
 
 moderngl = pytest.importorskip("moderngl")
 
+from phyir.insert.objects import PRESETS, SceneObject, primitive  # noqa: E402
 from viewer import glsl  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
-from viewer.objects import PRESETS, SceneObject, primitive  # noqa: E402
 from viewer.view import EquirectView  # noqa: E402
 
 pytestmark = pytest.mark.gl
@@ -99,7 +101,7 @@ def test_brdf_glsl_matches_torch(ctx):
 
 @pytest.mark.parametrize("material", list(RELIGHT_MATERIALS))
 def test_table2_spheres_match_converged_renderer(renderer, material):
-    """Table 2 spheres under HDR probes: GLSL vs phyir.render.shade_env at 2048 spp (Monte Carlo noise
+    """Table 2 spheres under HDR probes: GLSL vs phyir.shading.render.shade_env at 2048 spp (Monte Carlo noise
     on a 16-pixel sphere: ~1% rel L1 for diffuse, 0.4% for matte silver)."""
     view_dir = torch.tensor([[0.3, -0.2, -1.0]])
     S = 16

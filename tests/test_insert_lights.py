@@ -9,9 +9,15 @@ import torch
 from insert_fixtures import box_room
 
 from phyir import pano
-from phyir.lights_extract import extract_lights, luminance
-from phyir.object_lighting import ProbeField, irradiance_map, object_lighting, peak_samples, place_lights
-from phyir.projection import DepthSurface
+from phyir.lighting.extract import extract_lights, luminance
+from phyir.lighting.object_lighting import (
+    ProbeField,
+    irradiance_map,
+    object_lighting,
+    peak_samples,
+    place_lights,
+)
+from phyir.lighting.projection import DepthSurface
 
 
 def disc_probe(h: int = 32, w: int = 64, spots=((0.3, 0.8, -0.5, 0.12, 80.0), (-0.7, 0.1, 0.7, 0.08, 30.0)),
@@ -119,7 +125,7 @@ def test_support_shadowed_darkens_the_floor_under_a_sphere():
     """Uniform light, a sphere of radius r resting on a plane: the floor point seen at angle t from
     straight down keeps 1 - cos^3 t of its light (form factor of the sphere there), so the cosine-
     weighted mean straight down is 1 - 2/5; upward the cube is unchanged."""
-    from phyir.object_lighting import AXES, irradiance_at, support_shadowed
+    from phyir.lighting.object_lighting import AXES, irradiance_at, support_shadowed
 
     probe = torch.ones(3, 64, 128)
     ambient = irradiance_at(probe, AXES)
@@ -135,7 +141,7 @@ def test_support_shadowed_darkens_the_floor_under_a_sphere():
 def test_dragged_object_keeps_its_lights_where_they_are(monkeypatch):
     """While dragging (``previous`` given) the lights keep their room positions, seen from the new
     centre, and are not marched again; past one radius from where they were marched they are."""
-    import phyir.object_lighting as ol
+    import phyir.lighting.object_lighting as ol
 
     room = box_room(32, 64, grid=(4, 8), probe_size=(8, 16))
     field, surface = ProbeField(room), DepthSurface.from_scene(room)

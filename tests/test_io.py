@@ -11,8 +11,9 @@ import pytest
 import torch
 from PIL import Image
 
-from phyir import PanoScene, io, ldr, rgbe
+from phyir import PanoScene, io
 from phyir.errors import PhyIRError
+from phyir.io import ldr, rgbe
 from phyir.pano import normals_from_depth
 
 H, W = 32, 64

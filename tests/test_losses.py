@@ -9,8 +9,8 @@ import pytest
 import torch
 from nets_fixtures import one_thread, tiny_scenes
 
-from phyir.data import normalize_scene
-from phyir.losses import (
+from phyir.learn.datasets import normalize_scene
+from phyir.learn.losses import (
     STAGE_WEIGHTS,
     LossOptions,
     LossWeights,
@@ -94,7 +94,7 @@ def _gt_batch(n: int = 2) -> PanoScene:
 
 
 def test_render_loss_is_zero_for_a_consistent_scene_and_ignores_emitters():
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     gt = _gt_batch()
     size = gt.size  # re-render at the scene's resolution: no resampling in between

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from phyir.errors import InputError
-from viewer import objects
-from viewer.objects import PRESETS, SceneObject, load_mesh, parse_material, primitive
+from phyir.insert import objects
+from phyir.insert.objects import PRESETS, SceneObject, load_mesh, parse_material, primitive
 
 trimesh = pytest.importorskip("trimesh")
 

@@ -1,4 +1,4 @@
-"""Placement of inserted objects through the functions a click and a drag call (phyir.placement)."""
+"""Placement of inserted objects through the functions a click and a drag call (phyir.insert.placement)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import pytest
 import torch
 from insert_fixtures import FLOOR_Y, TABLE_HI, TABLE_LO, box_room
 
-from phyir import pano, placement
+from phyir import pano
 from phyir.errors import PhyIRError
+from phyir.insert import placement
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ import phyir
 from phyir import inference as I
 from phyir.cli import main as cli
 from phyir.io import load_scene, save_panorama, save_scene
+from phyir.learn.weights import save_weights
 from phyir.nets import ModelConfig, PhyIRModel
-from phyir.weights import save_weights
 
 _threads = pytest.fixture(scope="module", autouse=True)(one_thread)
 
@@ -228,8 +228,8 @@ def test_cli_eval_on_predictions_and_on_a_dataset(tmp_path, weights, capsys):
 
 
 def test_dataset_means_baseline(tmp_path):
-    from phyir.data import exposure_scale
     from phyir.evaluation import dataset_means, means_baseline
+    from phyir.learn.datasets import exposure_scale
 
     write_dataset(tmp_path, n_train=2, n_val=1, H=32, W=64, grid=(2, 4), probe_size=(4, 8))
     train = [load_scene(tmp_path / f"scene_{i:06d}.exr") for i in range(2)]

@@ -1,4 +1,4 @@
-"""Split-sum tables and probe prefiltering (phyir.prefilter), against independent quadratures."""
+"""Split-sum tables and probe prefiltering (phyir.shading.prefilter), against independent quadratures."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from phyir import pano, prefilter
+from phyir import pano
+from phyir.shading import prefilter
 
 
 def _hemisphere(nt: int = 800, np_: int = 400):

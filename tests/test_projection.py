@@ -1,4 +1,4 @@
-"""Projection-based lighting (phyir.projection) against an analytic box room.
+"""Projection-based lighting (phyir.lighting.projection) against an analytic box room.
 
 The room is an axis-aligned box around the camera, optionally with a box of furniture standing on the
 floor against a wall.  Radiance is a smooth function of the 3D surface point (so it is the same seen
@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from phyir import pano
-from phyir.projection import (
+from phyir.lighting.projection import (
     PROBE_OFFSET,
     DepthSurface,
     offset_direction,

@@ -1,4 +1,4 @@
-"""The rendering layer (phyir.render) against independent brute-force quadratures, plus stability,
+"""The rendering layer (phyir.shading.render) against independent brute-force quadratures, plus stability,
 gradients, batching, skips and the benchmark command."""
 
 from __future__ import annotations
@@ -9,9 +9,10 @@ import math
 import pytest
 import torch
 
-from phyir import brdf, pano, render
+from phyir import pano
 from phyir.errors import InputError
 from phyir.scene import PanoScene, SceneError
+from phyir.shading import brdf, render
 
 
 def _smooth_env(h: int = 32, w: int = 64) -> torch.Tensor:
@@ -434,7 +435,7 @@ def test_cuda_matches_cpu():
 
 
 def test_bench_render_smoke(tmp_path, monkeypatch):
-    from phyir import bench_render
+    from phyir.bench import render as bench_render
     from phyir.cli import main
 
     tiny = {"size": (16, 32), "block": 2, "probe": (8, 16), "ref_spp": 64, "repeats": 1,

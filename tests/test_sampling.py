@@ -1,4 +1,4 @@
-"""Sampling helpers (phyir.sampling): point sets, frames, direction pdfs, MIS weights."""
+"""Sampling helpers (phyir.shading.sampling): point sets, frames, direction pdfs, MIS weights."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import math
 
 import torch
 
-from phyir import sampling as S
-from phyir.brdf import ggx_d
+from phyir.shading import sampling as S
+from phyir.shading.brdf import ggx_d
 
 
 def test_radical_inverse_and_hammersley():

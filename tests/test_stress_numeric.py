@@ -14,8 +14,10 @@ import torch.nn.functional as F
 from nets_fixtures import one_thread, tiny_scene, tiny_scenes
 
 import phyir
-from phyir import losses, pano, prefilter, render
-from phyir.data import (
+from phyir import pano
+from phyir.inference import guided_upsample
+from phyir.learn import losses
+from phyir.learn.datasets import (
     KEY,
     SCALE_RANGE,
     Augment,
@@ -27,10 +29,10 @@ from phyir.data import (
     luminance,
     normalize_scene,
 )
-from phyir.inference import guided_upsample
 from phyir.nets import ModelConfig, PhyIRModel
 from phyir.nets.gsnet import guided_filter
 from phyir.scene import PanoScene
+from phyir.shading import prefilter, render
 
 _threads = pytest.fixture(scope="module", autouse=True)(one_thread)
 H, W = 32, 64  # predict runs its networks at 32x64 too
@@ -336,7 +338,7 @@ def test_training_with_extreme_exposures_stays_finite(tmp_path, capsys):
     on scenes at exposures 1e-6 .. 1e6, through the real dataset path (scene files, float16 cache,
     augmentation): every loss finite, no batch skipped, every weight finite, the loss falls."""
     from phyir.io import save_scene
-    from phyir.train import TrainConfig, train
+    from phyir.learn.train import TrainConfig, train
 
     names = []
     for i, (s, k) in enumerate(zip(tiny_scenes(4, H=32, W=64, grid=(2, 4), probe_size=(8, 16)),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from phyir import sampling as S
+from phyir.shading import sampling as S
 from phyir.synth import geometry as G
 from phyir.synth.dataset import tiny_settings
 from phyir.synth.lights import (

@@ -17,13 +17,13 @@ import pytest
 import torch
 from nets_fixtures import one_thread, tiny_scenes, write_dataset
 
-from phyir.data import Augment, TensorSceneDataset, normalize_scene
 from phyir.errors import InputError, PhyIRError
-from phyir.losses import LossOptions, LossWeights, total_loss
+from phyir.learn.datasets import Augment, TensorSceneDataset, normalize_scene
+from phyir.learn.losses import LossOptions, LossWeights, total_loss
+from phyir.learn.train import STAGE_ORDER, TrainConfig, train
+from phyir.learn.weights import load_model, save_weights
 from phyir.nets import PhyIRModel
 from phyir.scene import PanoScene
-from phyir.train import STAGE_ORDER, TrainConfig, train
-from phyir.weights import load_model, save_weights
 
 REPO = Path(__file__).resolve().parents[1]
 H, W, GRID, PROBE = 32, 64, (2, 4), (8, 16)
@@ -69,7 +69,7 @@ def test_overfit_one_batch_all_losses_fall_tenfold():
 
 
 def test_joint_stage_gradients_reach_gmnet_through_the_renderer():
-    from phyir.train import STAGES, StageForward
+    from phyir.learn.train import STAGES, StageForward
 
     batch = _batch(2)
     model = _model()
@@ -223,7 +223,7 @@ def test_weights_round_trip_and_refusals(tmp_path):
     assert (tmp_path / "m.json").is_file()
     # another architecture
     full = PhyIRModel("full")
-    from phyir.weights import load_into
+    from phyir.learn.weights import load_into
 
     with pytest.raises(InputError) as e:
         load_into(full, p)
@@ -243,7 +243,7 @@ def test_weights_round_trip_and_refusals(tmp_path):
 def test_ship_stores_half_precision_with_the_sidecar(tmp_path):
     import json
 
-    from phyir.weights import ship
+    from phyir.learn.weights import ship
 
     model = _model()
     src = save_weights(model, tmp_path / "run.safetensors", {"data": {"resolution": "128x256"}})

@@ -9,7 +9,8 @@ import pytest
 import torch
 from nets_fixtures import one_thread, tiny_scene, write_dataset
 
-from phyir.data import (
+from phyir.errors import InputError
+from phyir.learn.datasets import (
     KEY,
     Augment,
     SceneDataset,
@@ -23,7 +24,6 @@ from phyir.data import (
     read_manifest,
     resize_scene,
 )
-from phyir.errors import InputError
 from phyir.pano import solid_angles
 from phyir.transforms import mirror_lr, rotate_yaw
 

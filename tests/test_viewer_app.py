@@ -80,7 +80,7 @@ def test_open_scene_switch_every_layer_and_check_depth_colours(app):
     from viewer.renderer import colormap_lut
 
     sc = box_room(64, 128)
-    app.worker._render = None  # the real re-rendering (phyir.render, split-sum) this once
+    app.worker._render = None  # the real re-rendering (phyir.shading.render, split-sum) this once
     try:
         app.open(sc)
         assert app.wait_idle(120), app.progress

@@ -171,10 +171,10 @@ def test_random_session_of_500_actions(tmp_path, monkeypatch):
         pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
     from conftest import PANOS
 
+    from phyir.insert.objects import PRESETS, PRIMITIVES
     from viewer.app import App
     from viewer.insertion import FUSIONS
     from viewer.layers import LAYERS
-    from viewer.objects import PRESETS, PRIMITIVES
     from viewer.recent import RecentFiles
     from viewer.renderer import COLORMAPS, TONEMAPS
 

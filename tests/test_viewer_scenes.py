@@ -50,7 +50,7 @@ def box_room(H: int = 64, W: int = 128, grid: tuple[int, int] = (4, 8),
 
 
 def cheap_render(scene: PanoScene) -> dict[str, torch.Tensor]:
-    """Stands in for phyir.render.render_scene where its cost (seconds on 2 cores) buys nothing."""
+    """Stands in for phyir.shading.render.render_scene where its cost (seconds on 2 cores) buys nothing."""
     diffuse = scene.albedo * scene.image.mean(0, keepdim=True)
     specular = 0.1 * scene.roughness.expand(3, -1, -1) * scene.image
     return {"diffuse": diffuse, "specular": specular, "image": diffuse + specular}

@@ -134,7 +134,7 @@ def test_a_real_job_imports_nothing_in_the_worker(tmp_path):
     the worker thread imports no module (viewer.worker.preload did at start-up), and the heap the
     start-up built is out of the cyclic collector's reach (``gc.freeze``)."""
     egl_or_skip()
-    from phyir.weights import default_weights_path
+    from phyir.learn.weights import default_weights_path
 
     if not default_weights_path().exists():
         pytest.skip("no shipped weights")

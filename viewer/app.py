@@ -74,7 +74,7 @@ class ScalarDisplay:
 class App:
     """The viewer.  ``headless=True`` renders through a standalone EGL context (no window/input);
     ``ui=False`` draws only the view (no imgui).  ``predict``/``render`` replace ``phyir.predict``
-    and ``phyir.render.render_scene`` (tests); ``recent=False`` disables the recent-files list."""
+    and ``phyir.shading.render.render_scene`` (tests); ``recent=False`` disables the recent-files list."""
 
     def __init__(self, size: tuple[int, int] = (1400, 820), *, headless: bool = False, ui: bool = True,
                  scale: float = 1.0, title: str = "phyir-view", visible: bool = True, predict=None,

@@ -13,18 +13,18 @@ Settings (``shade_gbuffer`` with):
 * ``ggx N``: N GGX samples of the probe's residual (the viewer: :data:`viewer.insertion.FULL` 128
   for still frames, :data:`viewer.insertion.DRAGGING` 4 while dragging), peak samples on;
 * ``ggx N, no peaks``: the brightest texels left in the sampled residual instead of integrated as
-  point samples (:func:`phyir.object_lighting.peak_samples` disabled for the call);
+  point samples (:func:`phyir.lighting.object_lighting.peak_samples` disabled for the call);
 * ``ggx 128, irradiance 8x16``: a coarser diffuse irradiance map than the viewer's
-  (:data:`phyir.object_lighting.IRRADIANCE_SIZE`);
+  (:data:`phyir.lighting.object_lighting.IRRADIANCE_SIZE`);
 * for comparison, torch on the CPU: the split-sum ``prefiltered`` method and ``importance`` sampling at a
-  few spp (:func:`phyir.render.shade_env`).
+  few spp (:func:`phyir.shading.render.shade_env`).
 
 Error: relative L1, ``sum |x - ref| / sum |ref|`` over the sphere's pixels, averaged over the probes.
 Time: the median of repeated calls after a warm-up (interleaved, see
-:func:`phyir.bench_measure.time_calls`); ``frame_ms`` is the whole call minus ``prep_ms``, the
+:func:`phyir.bench.measure.time_calls`); ``frame_ms`` is the whole call minus ``prep_ms``, the
 CPU-side lighting preparation (peak samples, mip pyramid, irradiance map) which the viewer does
 only when an object moves, so ``frame_ms`` is texture upload, the draw and the read-back.
-Probes: the render benchmark's procedural lamp-lit probe (:func:`phyir.bench_render.bench_scene`) and
+Probes: the render benchmark's procedural lamp-lit probe (:func:`phyir.bench.render.bench_scene`) and
 the real panoramas of ``../shared/panos`` when present (downsampled to 16x32, the scene probes' size).
 """
 
@@ -50,7 +50,7 @@ REPO = Path(__file__).resolve().parents[1]
 def bench_probes(n_panos: int) -> dict[str, torch.Tensor]:
     """Probes ``[3, 16, 32]``: the procedural one and up to ``n_panos`` real panoramas."""
     from phyir import io, pano
-    from phyir.bench_render import bench_scene
+    from phyir.bench.render import bench_scene
 
     sc = bench_scene("glossy", 16, 32, block=8, probe_size=PROBE_SIZE, seed=3)
     probes = {"procedural lamps": sc.probes[1, 2].float()}
@@ -79,7 +79,7 @@ def _patched(no_peaks: bool = False, irradiance: tuple[int, int] | None = None) 
 
 def _prep(probe: torch.Tensor, settings: dict) -> None:
     """shade_gbuffer's CPU-side preparation of one probe (timed on its own: see the module doc)."""
-    from phyir.object_lighting import irradiance_map, peak_samples, probe_mips
+    from phyir.lighting.object_lighting import irradiance_map, peak_samples, probe_mips
 
     residual = probe if settings.get("no_peaks") else peak_samples(probe)[2]
     probe_mips(probe)
@@ -104,8 +104,8 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               log: Callable[[str], None] = print) -> dict:
     """Run the shading benchmark; write ``shading.json`` and ``shading.png``.  GL runs on a headless
     EGL context; ``device`` is where the torch reference renders."""
-    from phyir.bench_measure import torch_threads
-    from phyir.bench_report import target_config
+    from phyir.bench.measure import torch_threads
+    from phyir.bench.report import target_config
 
     cfg = target_config(FULL, QUICK, quick, repeats)
 
@@ -125,12 +125,12 @@ def _context():
 
 
 def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
-    from phyir.bench_measure import time_calls
-    from phyir.bench_report import save_target
-    from phyir.bench_synth import pair_noise, rel_l1
+    from phyir.bench.measure import time_calls
+    from phyir.bench.report import save_target
+    from phyir.bench.synth import pair_noise, rel_l1
+    from phyir.insert.objects import PRESETS
     from phyir.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from viewer.insertion import InsertionRenderer
-    from viewer.objects import PRESETS
 
     S = cfg["size"]
     probes = bench_probes(cfg["panos"])
@@ -246,7 +246,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     mats = list(dict.fromkeys(r["material"] for r in result["rows"]))
     fig, axes = plt.subplots(1, len(mats), figsize=(5 * len(mats), 4.2), squeeze=False)

@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from phyir import pano, placement
+from phyir import pano
 from phyir.errors import InputError, PhyIRError
+from phyir.insert import placement
+from phyir.insert.objects import SceneObject, object_mesh, parse_material
 from phyir.scene import PanoScene
-from viewer.objects import SceneObject, object_mesh, parse_material
 from viewer.view import EquirectView, PerspectiveView
 
 GIF_WIDTH = 512
@@ -134,7 +135,7 @@ class ViewSpec:
 def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """uint8 sRGB of linear ``rgb [h,w,3]``: ``2^exposure`` x ACES (Narkowicz fit, as the viewer's
     colour.glsl); ``exposure`` None: the median luminance maps to 0.18."""
-    from phyir.ldr import linear_to_srgb
+    from phyir.io.ldr import linear_to_srgb
 
     x = np.maximum(rgb, 0)
     if exposure is None:
@@ -153,8 +154,7 @@ def write_passes(out: dict[str, np.ndarray], path: str, exposure: float | None,
     """``.exr``: the passes (and a PNG next to it); ``.png``: the tonemapped composite.  Atomic writes."""
     from PIL import Image
 
-    from phyir import exr
-    from phyir.io import atomic_write
+    from phyir.io import atomic_write, exr
 
     stem, ext = os.path.splitext(path)
     ext = ext.lower()

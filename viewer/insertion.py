@@ -5,10 +5,10 @@
 context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per frame:
 
 1. each object's lighting (CPU, torch, only when it moved): the probe interpolated at its centre
-   (:class:`phyir.object_lighting.ProbeField`), its mip pyramid, exact irradiance map and dominant
-   lights placed in the room (:mod:`phyir.lights_extract`), uploaded as small textures;
+   (:class:`phyir.lighting.object_lighting.ProbeField`), its mip pyramid, exact irradiance map and dominant
+   lights placed in the room (:mod:`phyir.lighting.extract`), uploaded as small textures;
 2. each object is drawn into its own tile of an *impostor atlas* by a perspective camera at the
-   panorama's centre aimed at it (``object.frag``: IBL with the BRDF of phyir.brdf, parallax-corrected
+   panorama's centre aimed at it (``object.frag``: IBL with the BRDF of phyir.shading.brdf, parallax-corrected
    mirror reflections, scene-occludes-object test); every view (equirect, perspective, export) then
    looks the object up by direction, so seams and poles need no special case;
 3. each dominant light renders the object's distance into a *shadow atlas* tile (``shadow.frag``);
@@ -27,10 +27,10 @@ import moderngl
 import numpy as np
 import torch
 
-from phyir import pano, prefilter
-from phyir.brdf import f0_from_material
+from phyir import pano
 from phyir.errors import PhyIRError
-from phyir.object_lighting import (
+from phyir.insert.objects import Material, Mesh, SceneObject
+from phyir.lighting.object_lighting import (
     HALO,
     N_HALO,
     ObjectLighting,
@@ -40,11 +40,12 @@ from phyir.object_lighting import (
     peak_samples,
     probe_mips,
 )
-from phyir.projection import DepthSurface
-from phyir.render import MIRROR_ROUGHNESS
+from phyir.lighting.projection import DepthSurface
 from phyir.scene import PanoScene
+from phyir.shading import prefilter
+from phyir.shading.brdf import f0_from_material
+from phyir.shading.render import MIRROR_ROUGHNESS
 from viewer import glsl
-from viewer.objects import Material, Mesh, SceneObject
 from viewer.view import EquirectView, PerspectiveView
 
 MAX_OBJECTS, MAX_LIGHTS, MAX_PROXIES = 8, 16, 64  # shaders/composite.frag

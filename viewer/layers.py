@@ -81,7 +81,7 @@ def scene_arrays(scene: PanoScene, names=LAYERS) -> dict[str, np.ndarray]:
 
 
 def rendered_arrays(image: np.ndarray, passes: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
-    """``phyir.render.render_scene`` output -> rerender/diffuse/specular/error arrays."""
+    """``phyir.shading.render.render_scene`` output -> rerender/diffuse/specular/error arrays."""
     out = {"rerender": to_hwc(passes["image"]), "diffuse": to_hwc(passes["diffuse"]),
            "specular": to_hwc(passes["specular"])}
     out["error"] = error_map(image, out["rerender"])

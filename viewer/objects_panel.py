@@ -17,10 +17,10 @@ import os
 import numpy as np
 import torch
 
-from phyir import placement
 from phyir.errors import PhyIRError
+from phyir.insert import placement
+from phyir.insert.objects import PRESETS, PRIMITIVES, Material, SceneObject, object_mesh
 from viewer.insertion import FUSIONS, InsertionPass, InsertionRenderer
-from viewer.objects import PRESETS, PRIMITIVES, Material, SceneObject, object_mesh
 from viewer.view import PerspectiveView
 
 DEFAULT_SIZE = 0.25  # metres: primitives are unit-size, added ones start at this scale

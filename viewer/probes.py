@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from phyir import pano, projection
+from phyir import pano
+from phyir.lighting import projection
 from phyir.scene import PanoScene
 from viewer.layers import probe_at, probe_block
 

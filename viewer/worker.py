@@ -140,7 +140,7 @@ class Worker:
         only re-predicted for comparison when a model can actually run."""
         if self._predict is not None or self.predict_kwargs.get("weights"):
             return True
-        from phyir.weights import default_weights_path
+        from phyir.learn.weights import default_weights_path
 
         return default_weights_path().exists()
 
@@ -221,9 +221,10 @@ class Worker:
 
 # Modules a job imports on first use (phyir.io's readers, phyir.predict's model and weights, the
 # re-render; numpy.ma, which np.percentile in layers.auto_range imports at its first call).
-JOB_MODULES = ("numpy.ma", "phyir.io", "phyir.exr", "phyir.ldr", "phyir.rgbe", "phyir.inference",
-               "phyir.weights", "phyir.nets.model", "phyir.data", "safetensors", "safetensors.torch",
-               "phyir.render")
+JOB_MODULES = ("numpy.ma", "phyir.io", "phyir.io.exr", "phyir.io.ldr", "phyir.io.rgbe", "phyir.inference",
+               "phyir.learn.weights", "phyir.nets.model", "phyir.learn.datasets", "safetensors",
+               "safetensors.torch",
+               "phyir.shading.render")
 
 
 def preload() -> None:
@@ -292,9 +293,9 @@ def _library_predict() -> Callable | None:
 
 
 def _library_render() -> Callable | None:
-    if importlib.util.find_spec("phyir.render") is None:
+    if importlib.util.find_spec("phyir.shading.render") is None:
         return None
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     # split-sum shading: fast and close to the Monte Carlo render (docs/rendering.md)
     return lambda scene: render_scene(scene, method="prefiltered")

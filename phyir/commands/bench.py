@@ -4,7 +4,7 @@ Each target is a module with ``run_bench(out_dir, *, quick, device, repeats, thr
 writes ``<target>.json`` and ``<target>.png`` into ``out_dir`` and prints its table; it may define
 ``format_table(result) -> str`` and ``key_numbers(result) -> dict[str, float]`` for the report.  Add a
 target by adding it to :data:`TARGETS`; ``phyir bench`` alone runs every target whose module exists.
-After the targets, ``report.md`` and ``report.json`` gather them all (:mod:`phyir.bench_report`).
+After the targets, ``report.md`` and ``report.json`` gather them all (:mod:`phyir.bench.report`).
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ HELP = ("benchmark PhyIR: time and error of every stage; per target JSON + PNG, 
 
 # target name -> module implementing run_bench
 TARGETS = {
-    "modules": "phyir.bench_modules",  # per-module time and memory vs the supplement's Table 1
-    "skips": "phyir.bench_skips",  # time saved and result changed by every skip
-    "render": "phyir.bench_render",  # rendering layer: methods x sample counts, time vs error
-    "synth": "phyir.bench_synth",  # data generator: samples per pixel vs noise
-    "model": "phyir.bench_model",  # model size x resolution vs depth / albedo / relighting error
+    "modules": "phyir.bench.modules",  # per-module time and memory vs the supplement's Table 1
+    "skips": "phyir.bench.skips",  # time saved and result changed by every skip
+    "render": "phyir.bench.render",  # rendering layer: methods x sample counts, time vs error
+    "synth": "phyir.bench.synth",  # data generator: samples per pixel vs noise
+    "model": "phyir.bench.model",  # model size x resolution vs depth / albedo / relighting error
     "shading": "viewer.bench_shading",  # the viewer's shading settings vs the converged reference
 }
 
@@ -61,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
 
     import torch
 
-    from phyir import bench_measure, bench_report
+    from phyir.bench import measure as bench_measure
+    from phyir.bench import report as bench_report
     from phyir.errors import InputError
 
     have = available()

@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             files = export.write_passes(out, args.out, args.exposure, meta)
             print(f"wrote {', '.join(files)} ({size[0]}x{size[1]}, {time.perf_counter() - t0:.1f} s)")
             return 0
-        from phyir import placement
+        from phyir.insert import placement
 
         normal = placement.scene_normals(scene)
         frames = []

@@ -67,7 +67,7 @@ def _loss_option(text: str) -> tuple[str, object]:
 
 def options(args: argparse.Namespace) -> dict:
     """Training options: the ``--config`` file's, overridden by the flags given."""
-    from phyir.train import load_config_file
+    from phyir.learn.train import load_config_file
 
     opts = load_config_file(args.config) if args.config else {}
     keys = ("data", "stage", "out", "model", "init", "epochs", "lr", "batch_size", "size", "probe_grid",
@@ -83,7 +83,7 @@ def options(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from phyir.train import TrainConfig, train
+    from phyir.learn.train import TrainConfig, train
 
     result = train(TrainConfig.from_dict(options(args)))
     return 0 if result["status"] in ("done", "stopped") else 1

@@ -1,7 +1,7 @@
 """The full PhyIR model: GMNet -> LNet -> GSNet, in two sizes.
 
 ``full`` has the paper's widths; ``lite`` is narrower so it trains and runs on a CPU.
-The model works on **exposure-normalised** linear images (see :mod:`phyir.data`); use
+The model works on **exposure-normalised** linear images (see :mod:`phyir.learn.datasets`); use
 :meth:`PhyIRModel.predict` for raw HDR or linearised LDR input: it normalises the image and scales
 the predicted probes back to the input's units.
 """
@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from phyir.data import exposure_scale
+from phyir.learn.datasets import exposure_scale
 from phyir.nets.gmnet import GMNet
 from phyir.nets.gsnet import GSNet
 from phyir.nets.lnet import LNet
@@ -27,7 +27,7 @@ SIZE_MULTIPLE = 32  # the GMNet encoder's total stride: H and W must be multiple
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Architecture hyper-parameters (stored beside weights; see :mod:`phyir.weights`)."""
+    """Architecture hyper-parameters (stored beside weights; see :mod:`phyir.learn.weights`)."""
 
     size: str = "lite"
     enc_width: float = 0.5
@@ -75,7 +75,7 @@ class PhyIRModel(nn.Module):
         self.gmnet = GMNet(cfg.enc_width, cfg.dec_width, cfg.norm)
         self.lnet = LNet(cfg.light_width, cfg.probe_size, cfg.light_head_kernel)
         self.gsnet = GSNet(cfg.gs_width, cfg.gs_radius, cfg.gs_targets)
-        # channels-last convolutions are ~1.6x faster on CPU (measured: phyir.nets.profile)
+        # channels-last convolutions are ~1.6x faster on CPU (measured: phyir.bench.profile)
         self.to(memory_format=torch.channels_last)
 
     def default_grid(self, H: int, W: int) -> tuple[int, int]:

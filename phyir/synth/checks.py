@@ -2,7 +2,7 @@
 
 Run ``python -m phyir.synth.checks [--scenes 20] [--size 128x256] [--out docs/synth_checks.json]``.
 
-* consistency: the rendering layer (:func:`phyir.render.render_scene`) applied to a scene's
+* consistency: the rendering layer (:func:`phyir.shading.render.render_scene`) applied to a scene's
   ground-truth layers and probes against its ground-truth image: relative L1
   ``sum|render - gt| / sum gt`` over non-emissive pixels, per scene and averaged; also over
   diffuse-dominated pixels (M < 0.5, R > 0.6) and glossy/metal pixels;
@@ -44,7 +44,7 @@ def consistency(scene: PanoScene, spp: int = 128) -> dict:
     patches, lamp-lit spots); ``*_share`` is each class's share of the total absolute error."""
     import torch.nn.functional as F
 
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     out = render_scene(scene, spp=spp)["image"]
     nonem = scene.masks["emission"] < 0.5

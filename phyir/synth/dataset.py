@@ -235,12 +235,12 @@ def demo_settings() -> TraceSettings:
 
 
 def demo_scene_path() -> Path:
-    """The demo scene: ``phyir/data/demo.exr`` if shipped, else rendered once into the user cache.
+    """The demo scene: ``phyir/assets/demo.exr`` if shipped, else rendered once into the user cache.
 
     Regeneration is deterministic (seed ``DEMO_SEED``, scene ``DEMO_INDEX``, ``DEMO_SETTINGS``)
     and takes minutes on a CPU.
     """
-    shipped = Path(__file__).resolve().parents[1] / "data" / "demo.exr"
+    shipped = Path(__file__).resolve().parents[1] / "assets" / "demo.exr"
     if shipped.exists():
         return shipped
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "phyir" / "demo.exr"

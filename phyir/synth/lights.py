@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from phyir.sampling import local_to_world, sample_linear
+from phyir.shading.sampling import local_to_world, sample_linear
 from phyir.synth import geometry as G
 
 AREA, PORTAL, SUN = 0, 1, 2

@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from phyir import brdf, prefilter
-from phyir import sampling as S
 from phyir.pano import bilinear_taps, dir_to_uv, directions, solid_angles, uv_to_dir
 from phyir.scene import PROBE_OFFSET
+from phyir.shading import brdf, prefilter
+from phyir.shading import sampling as S
 from phyir.synth import geometry as G
 from phyir.synth.lights import PORTAL
 from phyir.synth.materials import evaluate
@@ -117,7 +117,7 @@ def _cos(a: Tensor, b: Tensor) -> Tensor:
 
 
 def eval_brdf(h: Hits, v: Tensor, l: Tensor) -> tuple[Tensor, Tensor]:
-    """(f_d, f_s) ``[N,3]`` of the shared UE4 BRDF (phyir.brdf) at hits."""
+    """(f_d, f_s) ``[N,3]`` of the shared UE4 BRDF (phyir.shading.brdf) at hits."""
     return brdf.brdf_vectors(h.n, v, l, h.base, h.rough[:, None], h.metal[:, None], dim=1)
 
 

@@ -21,7 +21,7 @@ from functools import lru_cache
 import torch
 from torch import Tensor
 
-from phyir.brdf import ggx_d
+from phyir.shading.brdf import ggx_d
 
 POINT_SETS = ("sobol", "hammersley", "random")
 _ONE_MINUS = 1.0 - 2.0**-24  # largest float32 below one: keeps u in [0,1) after rotation

@@ -9,7 +9,7 @@ Networks run in float32 under ``torch.inference_mode`` (the paper: "without quan
 ``predict`` runs as users call it (float16 autocast on CUDA).
 
 Times: median of ``repeats`` runs after one warm-up, with min / max and quartiles (see
-:mod:`phyir.bench_measure`).  Peak memory: on the CPU measured in a fresh child process whose
+:mod:`phyir.bench.measure`).  Peak memory: on the CPU measured in a fresh child process whose
 allocator returns freed memory (so each part's peak is its own), as the resident size above the
 state before the call; on CUDA ``torch.cuda.max_memory_allocated``.
 """
@@ -36,16 +36,16 @@ CALIBRATION_MB = 64  # a tensor of known size whose measured peak checks the mem
 
 def bench_image(H: int, W: int, device: str = "cpu") -> torch.Tensor:
     """A deterministic HDR panorama ``[3, H, W]``: the procedural glossy scene of
-    :mod:`phyir.bench_render` rendered with the prefiltered layer (lamps up to ~10x the median)."""
-    from phyir.bench_render import bench_scene
-    from phyir.render import render_scene
+    :mod:`phyir.bench.render` rendered with the prefiltered layer (lamps up to ~10x the median)."""
+    from phyir.bench.render import bench_scene
+    from phyir.shading.render import render_scene
 
     sc = bench_scene("glossy", H, W, block=max(1, H // 16))
     return render_scene(sc, method="prefiltered")["image"].float().clamp_min(0).to(device)
 
 
 def _render_scene(cfg: dict, device: str):
-    from phyir.bench_render import bench_scene
+    from phyir.bench.render import bench_scene
 
     rh, rw = cfg["render_size"]
     return bench_scene("mixed", rh, rw, block=rh // 16).to(device)  # a 16x32 probe grid, as LNet's
@@ -54,9 +54,9 @@ def _render_scene(cfg: dict, device: str):
 def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], object]]:
     """Callables running each part on realistic inputs (earlier stages precomputed)."""
     import phyir
+    from phyir.bench.profile import _parts
     from phyir.nets.model import PhyIRModel
-    from phyir.nets.profile import _parts
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     H, W = cfg["size"]
     torch.manual_seed(0)
@@ -83,17 +83,17 @@ def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], obje
 def memory(cfg: dict, device: str) -> dict:
     """``{model size: {part: {extra_peak_mb, total_peak_mb}}}`` plus the calibration; measured here
     on CUDA, in a fresh child process on the CPU (empty where peaks can't be read)."""
-    from phyir import bench_measure
+    from phyir.bench import measure as bench_measure
 
     if bench_measure.is_cuda(device):
         return _memory_here(cfg, device)
     if not bench_measure.cpu_peak_supported():
         return {}
-    return bench_measure.measure_in_child("phyir.bench_modules", {**cfg, "threads": torch.get_num_threads()})
+    return bench_measure.measure_in_child("phyir.bench.modules", {**cfg, "threads": torch.get_num_threads()})
 
 
 def _memory_here(cfg: dict, device: str) -> dict:
-    from phyir.bench_measure import peak_memory
+    from phyir.bench.measure import peak_memory
 
     out: dict = {}
     calib = peak_memory(lambda: torch.ones(CALIBRATION_MB * 2**18, device=device).sum(), device)
@@ -113,8 +113,8 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               repeats: int | None = None, threads: int | None = None,
               log: Callable[[str], None] = print) -> dict:
     """Time and memory of every part; writes ``modules.json`` and ``modules.png``."""
-    from phyir.bench_measure import time_calls, torch_threads
-    from phyir.bench_report import save_target, target_config
+    from phyir.bench.measure import time_calls, torch_threads
+    from phyir.bench.report import save_target, target_config
     from phyir.nets.model import PhyIRModel, count_parameters
 
     cfg = target_config(FULL, QUICK, quick, repeats)
@@ -209,7 +209,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     sizes = list(result["models"])
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.5))
@@ -254,4 +254,4 @@ def _child(arg: str) -> int:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--memory":
         raise SystemExit(_child(sys.argv[2]))
-    raise SystemExit("usage: python -m phyir.bench_modules --memory CONFIG_JSON (internal; use phyir bench)")
+    raise SystemExit("usage: python -m phyir.bench.modules --memory CONFIG_JSON (internal; use phyir bench)")

@@ -1,17 +1,17 @@
 """Lighting of an inserted object: the probe at its 3D position and what the shaders need from it.
 
 * :class:`ProbeField` interpolates a scene's probe grid at any 3D point: the probes sit at the
-  positions of :func:`phyir.projection.probe_positions`; a point takes the ``k`` nearest, weighted
+  positions of :func:`phyir.lighting.projection.probe_positions`; a point takes the ``k`` nearest, weighted
   by a Wendland kernel whose radius is the distance to the (k+1)-th nearest, so the weights (and the
   lighting of an object being dragged) change continuously.
 * :func:`irradiance_map` is irradiance / pi of a probe per normal direction by quadrature of the
   probe's bilinear interpolant (``SUPERSAMPLE``^2 points per texel): the radiance
-  :func:`phyir.render.shade_env` integrates, at the precision the GLSL comparison needs (SH up to
+  :func:`phyir.shading.render.shade_env` integrates, at the precision the GLSL comparison needs (SH up to
   band 4 is 1-3% off on real HDR probes with small bright lamps).
 * :func:`probe_mips` is the mip pyramid the object shader samples (area-weighted 2x2 boxes).
 * :func:`object_lighting` assembles all of it for one object, with the dominant lights of
-  :mod:`phyir.lights_extract` placed in 3D by marching the depth panorama from the object
-  (:class:`phyir.projection.DepthSurface`), for shadows.
+  :mod:`phyir.lighting.extract` placed in 3D by marching the depth panorama from the object
+  (:class:`phyir.lighting.projection.DepthSurface`), for shadows.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import torch
 from torch import Tensor
 
 from phyir import pano
-from phyir.lights_extract import LUMA, Light, extract_lights, luminance
-from phyir.projection import DepthSurface, probe_positions
+from phyir.lighting.extract import LUMA, Light, extract_lights, luminance
+from phyir.lighting.projection import DepthSurface, probe_positions
 from phyir.scene import PanoScene, SceneError
 
 SUPERSAMPLE = 4

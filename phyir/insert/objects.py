@@ -39,7 +39,7 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 @dataclass
 class Material:
-    """The BRDF parameters of phyir.brdf: base colour (linear RGB), roughness R, metalness M."""
+    """The BRDF parameters of phyir.shading.brdf: base colour (linear RGB), roughness R, metalness M."""
 
     base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     roughness: float = 0.5

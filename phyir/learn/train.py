@@ -38,7 +38,7 @@ import torch.distributed as dist
 from torch import Tensor, nn
 
 from phyir.errors import InputError, PhyIRError
-from phyir.losses import STAGE_WEIGHTS, LossOptions, LossWeights, pick_output, total_loss
+from phyir.learn.losses import STAGE_WEIGHTS, LossOptions, LossWeights, pick_output, total_loss
 from phyir.nets.model import ModelConfig, PhyIRModel
 from phyir.scene import PanoScene
 
@@ -234,7 +234,7 @@ class EpochBatches:
 
 
 def make_datasets(cfg: TrainConfig, need_probes: bool):
-    from phyir.data import Augment, SceneDataset
+    from phyir.learn.datasets import Augment, SceneDataset
 
     if not cfg.data:
         raise PhyIRError("no dataset: pass --data DIR (a folder written by `phyir synth`)")
@@ -354,7 +354,7 @@ def _lr_lambda(schedule: str, total_steps: int):
 
 def _initial_weights(cfg: TrainConfig, model: PhyIRModel) -> str | None:
     """Load the stage's starting weights into ``model``; returns where they came from."""
-    from phyir.weights import load_into
+    from phyir.learn.weights import load_into
 
     if cfg.init == "scratch" or (cfg.init is None and cfg.stage == "gm"):
         return None
@@ -374,7 +374,7 @@ def _initial_weights(cfg: TrainConfig, model: PhyIRModel) -> str | None:
 
 def _model_config(cfg: TrainConfig) -> ModelConfig:
     """Architecture: from the starting weights when there are any, else the named size."""
-    from phyir.weights import read_weights
+    from phyir.learn.weights import read_weights
 
     src = cfg.init
     if src is None and cfg.stage != "gm":
@@ -602,7 +602,7 @@ def validate(model: PhyIRModel, stage: Stage, val_set, d: Dist, batch_size: int 
 def _loader(dataset, batches: list[list[int]], workers: int, seed: int):
     from torch.utils.data import DataLoader
 
-    from phyir.data import collate
+    from phyir.learn.datasets import collate
 
     # a private generator: creating the iterator draws worker seeds from it, not from the global RNG
     # (which would then depend on how often the run was resumed)
@@ -668,7 +668,7 @@ def _jsonable(x):
 
 def _export(model, path: Path, cfg: TrainConfig, stage: Stage, train_set, step: int, val: dict,
             init_from: str | None, seconds: float) -> None:
-    from phyir.weights import save_weights
+    from phyir.learn.weights import save_weights
 
     H, W = cfg.size or train_set[0].size
     data = {"root": cfg.data, "train_scenes": len(train_set), "resolution": f"{H}x{W}",

@@ -1,7 +1,7 @@
 """Training data: a folder of scene files with a split manifest, input normalisation, augmentation.
 
 Input handling (the same at training and inference time):
-- LDR photographs are linearised by the loader (sRGB decode, :mod:`phyir.ldr`).
+- LDR photographs are linearised by the loader (sRGB decode, :mod:`phyir.io.ldr`).
 - Every input is **exposure-normalised**: multiplied by ``s = KEY / median luminance`` so that its
   median luminance is ``KEY``; ground-truth probes (and the re-rendering) live in the same units.
   :meth:`phyir.nets.PhyIRModel.predict` divides the predicted probes by ``s``, so they come back in
@@ -77,7 +77,7 @@ def aces(x: Tensor) -> Tensor:
 
 def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
     """What a camera + the LDR loader would give: ACES, sRGB gamma, 8 bits, sRGB decode to linear."""
-    from phyir.ldr import linear_to_srgb, srgb_to_linear
+    from phyir.io.ldr import linear_to_srgb, srgb_to_linear
 
     enc = linear_to_srgb(aces(image * exposure).numpy())
     return torch.from_numpy(srgb_to_linear(np.round(enc * 255.0) / 255.0))

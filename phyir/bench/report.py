@@ -1,6 +1,6 @@
 """``DIR/report.md`` and ``DIR/report.json``: every target of one ``phyir bench`` run in one place.
 
-report.json holds the date, the command, the machine (:func:`phyir.bench_measure.machine_info`) and
+report.json holds the date, the command, the machine (:func:`phyir.bench.measure.machine_info`) and
 per target: its wall time, its table (markdown), its key numbers (the target's ``key_numbers(result)``
 or, failing that, the numbers at the top two levels of its result), its plots and its whole result.
 Targets not run this time keep their entry from the folder's previous report when it was made
@@ -101,7 +101,7 @@ def default_key_numbers(result: dict) -> dict[str, float]:
 
 
 def render_key_numbers(result: dict) -> dict[str, float]:
-    """Key numbers of :mod:`phyir.bench_render` (which has no ``key_numbers`` of its own)."""
+    """Key numbers of :mod:`phyir.bench.render` (which has no ``key_numbers`` of its own)."""
     out = {}
     for kind, res in result["scenes"].items():
         rows = res["rows"]

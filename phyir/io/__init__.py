@@ -25,8 +25,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from phyir import exr, ldr, rgbe
 from phyir.errors import InputError, PhyIRError
+from phyir.io import exr, ldr, rgbe
 from phyir.pano import directions
 from phyir.scene import NORMAL_TOL, PanoScene, SceneError
 

@@ -90,7 +90,7 @@ def trace_reference(seed: int, index: int, radius: float,
     resting on a free floor spot in front of the camera."""
     import time
 
-    from phyir.placement import surface_at
+    from phyir.insert.placement import surface_at
 
     t0 = time.perf_counter()
     room = room_for(seed, index)

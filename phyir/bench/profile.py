@@ -1,7 +1,7 @@
 """Parameter counts, FLOPs and CPU/GPU time of the PhyIR networks, per sub-network.
 
-    python -m phyir.nets.profile [--sizes lite full] [--res 256x512] [--repeat 5] [--json FILE]
-    python -m phyir.nets.profile --train-steps [--sizes lite] [--res 128x256] [--probe-grid 16x32]
+    python -m phyir.bench.profile [--sizes lite full] [--res 256x512] [--repeat 5] [--json FILE]
+    python -m phyir.bench.profile --train-steps [--sizes lite] [--res 128x256] [--probe-grid 16x32]
 
 FLOPs are counted with ``torch.utils.flop_counter.FlopCounterMode`` (convs and matmuls, 2 FLOPs per
 multiply-add; norms, activations and the guided filter's box sums are not counted).  Times are the
@@ -85,11 +85,11 @@ def _random_batch(B: int, H: int, W: int, grid: tuple[int, int], probe_size: tup
 
 def profile_train_steps(size: str = "lite", H: int = 128, W: int = 256, grid: tuple[int, int] = (16, 32),
                         repeat: int = 3) -> dict:
-    """Seconds per optimisation step of every stage at its default batch size (phyir.train.STAGES):
+    """Seconds per optimisation step of every stage at its default batch size (phyir.learn.train.STAGES):
     forward, losses with the stage's weights, backward, Adam step."""
 
-    from phyir.losses import STAGE_WEIGHTS, LossOptions, total_loss
-    from phyir.train import STAGES, StageForward
+    from phyir.learn.losses import STAGE_WEIGHTS, LossOptions, total_loss
+    from phyir.learn.train import STAGES, StageForward
 
     torch.manual_seed(0)
     model = PhyIRModel(size)

@@ -15,7 +15,7 @@ Formulas (see docs/training.md):
 - SC: neighbouring probes pulled together, weighted by exp(-|Δ log depth| / σ_sc) between their
   blocks, so probes across depth discontinuities are left free.
 - render: L2 of log(1 + x) between the input image and its re-rendering through
-  :func:`phyir.render.render_scene` from the predicted layers and probes, on non-emissive pixels.
+  :func:`phyir.shading.render.render_scene` from the predicted layers and probes, on non-emissive pixels.
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ def render_loss(image: Tensor, scene: PanoScene, non_emissive: Tensor | None = N
                 size: tuple[int, int] = (128, 256), spp: int = 16, method: str = "prefiltered") -> Tensor:
     """L2 of log(1 + x) between ``image`` [B,3,H,W] and the re-rendering of ``scene``'s layers and
     probes at ``size`` through the rendering layer, over non-emissive pixels."""
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     H, W = size
     down = lambda t: resize_area(t, H, W)  # noqa: E731

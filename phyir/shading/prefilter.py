@@ -9,7 +9,7 @@ either side of the lobe's mean direction, along its axis in the plane of n and v
 alpha of the kernel as wide as the lobe across that plane — the lobe's first and second moments,
 which the n = v = r kernel gets wrong at grazing views (off-specular peak, stretched lobe).
 ``(A, B)`` is the DFG table of *this* BRDF (UE4 Fresnel,
-Schlick-GGX G with k = (R+1)^2/8, from :mod:`phyir.brdf`).  Diffuse = B (1-M) · I(n), with ``I``
+Schlick-GGX G with k = (R+1)^2/8, from :mod:`phyir.shading.brdf`).  Diffuse = B (1-M) · I(n), with ``I``
 the cosine-weighted mean radiance (irradiance / pi) from real spherical harmonics up to band 4
 (0.5% from converged Monte Carlo on the benchmark scenes, against 1.2% with the usual band 2).
 At alpha = 1 GGX's D is constant, so the prefiltered lobe *is* the cosine lobe: the last level
@@ -37,8 +37,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
-from phyir.brdf import alpha_from_roughness, fresnel_ue4, ggx_d, visibility
-from phyir.sampling import ggx_half_vector, hammersley
+from phyir.shading.brdf import alpha_from_roughness, fresnel_ue4, ggx_d, visibility
+from phyir.shading.sampling import ggx_half_vector, hammersley
 
 DFG_SIZE = 32
 DFG_SAMPLES = 4096

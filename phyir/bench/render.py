@@ -107,8 +107,8 @@ PREFILTERED_F32 = "prefiltered_f32"  # the prefiltered path with float32 level m
 
 def level_matmul(probes: Tensor) -> str:
     """The dtype the prefiltered path's level matmul takes for ``probes [..., 3, h, w]`` when every
-    level is needed (:func:`phyir.prefilter.level_matmul_dtype`), as a name."""
-    from phyir import prefilter
+    level is needed (:func:`phyir.shading.prefilter.level_matmul_dtype`), as a name."""
+    from phyir.shading import prefilter
 
     rows = prefilter.map_rows(*probes.shape[-2:])
     return str(prefilter.level_matmul_dtype(probes, rows * probes.numel())).removeprefix("torch.")
@@ -162,8 +162,8 @@ def diffuse_quadrature(scene: PanoScene, chunk: int = 1024) -> Tensor:
     L is each pixel's bilinear mix of probes, itself bilinearly interpolated: integrated on the
     prefilter's 4x4 supersampled grid of every probe texel (the same radiance Monte Carlo sees).
     """
-    from phyir.prefilter import _fine_grid
-    from phyir.render import probe_weights
+    from phyir.shading.prefilter import _fine_grid
+    from phyir.shading.render import probe_weights
 
     H, W = scene.size
     Hp, Wp = scene.probe_grid  # type: ignore[misc]
@@ -187,7 +187,7 @@ class Reference:
     sampled halves, whose difference estimates the remaining noise (per layer, relative)."""
 
     def __init__(self, scene: PanoScene, spp: int, mask: Tensor, skips=True):
-        from phyir.render import render_scene
+        from phyir.shading.render import render_scene
 
         a = render_scene(scene, spp=spp // 2, seed=1_000_003, skips=skips)["specular"]
         b = render_scene(scene, spp=spp // 2, seed=2_000_003, skips=skips)["specular"]
@@ -261,8 +261,8 @@ def _shaded_mask(scene: PanoScene) -> Tensor:
 
 def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     """Time and error of uniform / importance sampling at several spp and of the prefiltered path."""
-    from phyir import prefilter
-    from phyir.render import render_scene
+    from phyir.shading import prefilter
+    from phyir.shading.render import render_scene
 
     mask = _shaded_mask(scene)
     t0 = time.perf_counter()
@@ -315,7 +315,7 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
 
 def prefiltered_breakdown(scene: PanoScene, out: dict[str, Tensor], ref: Reference) -> list[dict]:
     """Where the split sum errs: specular error and bias of the prefiltered render by n.v and R."""
-    from phyir.render import _view_dirs
+    from phyir.shading.render import _view_dirs
 
     H, W = scene.size
     nv = (scene.normal * _view_dirs(H, W, scene.normal.device, scene.normal.dtype)).sum(0, keepdim=True)
@@ -383,8 +383,8 @@ def seed_spread(kind: str, cfg: dict, device: str, base: dict, log: Callable[[st
     and scaled linearly) interleaved with the prefiltered call, so that this machine's changes of
     speed between the benchmark's phases can't bias the ratio.
     """
-    from phyir import prefilter
-    from phyir.render import render_scene
+    from phyir.shading import prefilter
+    from phyir.shading.render import render_scene
 
     isr = [r for r in base["rows"] if r["method"] == "importance"]
     spp = [r["spp"] for r in isr]
@@ -452,7 +452,7 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
 
     The reference shades every valid non-emissive pixel with full Monte Carlo (no approximation).
     """
-    from phyir.render import pixel_classes, render_scene
+    from phyir.shading.render import pixel_classes, render_scene
 
     mask = _shaded_mask(scene)
     spp = cfg["skip_spp"]
@@ -465,7 +465,7 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
         m = torch.zeros(scene.size[0] * scene.size[1], device=mask.device)
         m[classes[name]] = 1
         affected[name] = m.reshape(1, *scene.size) * mask
-    from phyir import render
+    from phyir.shading import render
 
     out = {}
     variants["rough_all_cosine"] = {"emissive", "rough"}
@@ -525,16 +525,16 @@ MEMORY_CASES = (("importance", False), ("importance", True), ("prefiltered", Fal
 
 def memory_use(H: int = 256, W: int = 512, spp: int = 64, log: Callable[[str], None] = print) -> list[dict]:
     """Peak resident memory added by one render at ``H x W`` (probe per 2x2 pixels), forward and
-    forward + backward, each in a fresh child process with :data:`phyir.bench_measure.MALLOC_ENV`
+    forward + backward, each in a fresh child process with :data:`phyir.bench.measure.MALLOC_ENV`
     (in this process, earlier targets' freed memory stays resident and hides the peaks); Linux only
     (empty elsewhere)."""
-    from phyir import bench_measure
+    from phyir.bench import measure as bench_measure
 
     if not bench_measure.cpu_peak_supported():
         return []
     rows = []
     for method, grad in MEMORY_CASES:
-        rows.append(bench_measure.measure_in_child("phyir.bench_render", {
+        rows.append(bench_measure.measure_in_child("phyir.bench.render", {
             "method": method, "grad": grad, "H": H, "W": W, "spp": spp, "threads": torch.get_num_threads()}))
         log(f"  memory {method:<11} {'forward+backward' if grad else 'forward':<16} "
             f"+{rows[-1]['extra_peak_mb']:.0f} MB (probes {rows[-1]['probes_mb']:.0f} MB)")
@@ -543,8 +543,8 @@ def memory_use(H: int = 256, W: int = 512, spp: int = 64, log: Callable[[str], N
 
 def _memory_child(method: str, grad: bool, H: int, W: int, spp: int) -> dict:
     """One case of :func:`memory_use`, measured in this (fresh) process."""
-    from phyir.bench_measure import peak_memory
-    from phyir.render import render_scene
+    from phyir.bench.measure import peak_memory
+    from phyir.shading.render import render_scene
 
     sc = bench_scene("mixed", H, W)
     if grad:
@@ -570,8 +570,8 @@ def energy_curves(path: Path | None = None) -> dict:
     the diffuse excess of a white dielectric (B = 1, M = 0 reflects 1 + F0 A + B) and the energy lost
     by the single-scattering specular lobe of a white metal (1 - A - B), against n.v per roughness.
     Also checks the rendering layer itself: diffuse of B = 1, M = 0 under a unit environment."""
-    from phyir import prefilter
-    from phyir.render import shade_env
+    from phyir.shading import prefilter
+    from phyir.shading.render import shade_env
 
     nv = torch.linspace(0.02, 1.0, 50)
     roughs = (0.1, 0.3, 0.5, 0.7, 1.0)
@@ -604,7 +604,7 @@ def _plot_energy(curves: dict, roughs: tuple[float, ...], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     for r in roughs:
@@ -630,8 +630,8 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     ``threads`` sets torch's CPU threads for the run (on a shared machine one thread makes CPU time
     a fair measure of work: no thread waits on a descheduled sibling).
     """
-    from phyir.bench_measure import torch_threads
-    from phyir.bench_report import target_config
+    from phyir.bench.measure import torch_threads
+    from phyir.bench.report import target_config
 
     with torch_threads(threads):
         return _run(out_dir, target_config(FULL, QUICK, quick, repeats), device, log)
@@ -661,7 +661,7 @@ def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str]
         log("render bench: memory at 256x512, 64 spp")
         result["memory"] = memory_use(log=log)
     result["config"]["loadavg_end"] = os.getloadavg()
-    from phyir.bench_report import save_target
+    from phyir.bench.report import save_target
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -759,7 +759,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     scenes = result["scenes"]
     cfg = result["config"]
@@ -794,7 +794,7 @@ def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[
     on one scene, and the importance-sampled spp that reaches each uniform error (layers image,
     diffuse, specular) and the prefiltered path's image error (its bias: the first row).
     Independent of machine load, so usable where the full benchmark can't run."""
-    from phyir.render import render_scene
+    from phyir.shading.render import render_scene
 
     cfg = dict(FULL if cfg is None else cfg)
     H, W = cfg["size"]
@@ -838,8 +838,8 @@ def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repe
                     log: Callable[[str], None] = print) -> dict:
     """CPU time (median, min of ``repeats`` interleaved calls after a warm-up) of the prefiltered path
     (prefiltering included) and of importance sampling at ``spps`` on a 128x256 bench scene."""
-    from phyir import prefilter
-    from phyir.render import render_scene
+    from phyir.shading import prefilter
+    from phyir.shading.render import render_scene
 
     sc = bench_scene(kind)
 
@@ -876,7 +876,7 @@ def resummarize(out_dir: str | os.PathLike) -> dict:
     ``report.md``/``report.json`` and its plot."""
     import json
 
-    from phyir import bench_report
+    from phyir.bench import report as bench_report
 
     out = Path(out_dir)
     result = json.loads((out / "render.json").read_text())
@@ -900,8 +900,8 @@ def resummarize(out_dir: str | os.PathLike) -> dict:
 
 
 if __name__ == "__main__":
-    # python -m phyir.bench_render OUT.json [glossy|metal ...]: errors only (sample_ratios)
-    # python -m phyir.bench_render OUT.json --prefiltered-cpu [kind [threads [spp ...]]]: prefiltered_cpu
+    # python -m phyir.bench.render OUT.json [glossy|metal ...]: errors only (sample_ratios)
+    # python -m phyir.bench.render OUT.json --prefiltered-cpu [kind [threads [spp ...]]]: prefiltered_cpu
     import sys
 
     torch.set_num_threads(1)
@@ -912,7 +912,7 @@ if __name__ == "__main__":
         torch.set_num_threads(case.pop("threads"))
         print(json.dumps(_memory_child(**case)))
         raise SystemExit(0)
-    if sys.argv[1:2] == ["--resummarize"]:  # python -m phyir.bench_render --resummarize DIR
+    if sys.argv[1:2] == ["--resummarize"]:  # python -m phyir.bench.render --resummarize DIR
         print(format_table(resummarize(sys.argv[2])))
         raise SystemExit(0)
     if sys.argv[2:3] == ["--prefiltered-cpu"]:
@@ -922,6 +922,6 @@ if __name__ == "__main__":
         res = prefiltered_cpu(*args[:1], spps=spps)
     else:
         res = {k: sample_ratios(k) for k in (sys.argv[2:] or ["glossy"])}
-    from phyir.bench_report import write_json
+    from phyir.bench.report import write_json
 
     write_json(Path(sys.argv[1]), res)

@@ -1,13 +1,13 @@
-"""Coverage-guided fuzzing of the file readers: ``python -m phyir.fuzz --seconds 60 [--target exr]``.
+"""Coverage-guided fuzzing of the file readers: ``python -m phyir.io.fuzz --seconds 60 [--target exr]``.
 
 Targets (each reads a file the way the program does; the seed corpus is made here by code):
 
 * ``exr``   — ``phyir.io.read_raw(panorama=False)`` (what ``phyir info`` reads) and ``load_scene``
-  of OpenEXR images (phyir/exr.py's header parser, then the OpenEXR library for the pixels);
+  of OpenEXR images (phyir/io/exr.py's header parser, then the OpenEXR library for the pixels);
 * ``scene`` — the same on multi-part scene files (layers, masks, meta, the probe atlas part);
-* ``hdr``   — the same on Radiance RGBE files (phyir/rgbe.py: flat and run-length scanlines);
-* ``png``   — the same on PNG and JPEG (phyir/ldr.py: its 16-bit PNG decoder, Pillow for the rest);
-* ``mesh``  — ``viewer.objects.load_mesh`` on OBJ/OFF/PLY text (trimesh parses; only our checks
+* ``hdr``   — the same on Radiance RGBE files (phyir/io/rgbe.py: flat and run-length scanlines);
+* ``png``   — the same on PNG and JPEG (phyir/io/ldr.py: its 16-bit PNG decoder, Pillow for the rest);
+* ``mesh``  — ``phyir.insert.objects.load_mesh`` on OBJ/OFF/PLY text (trimesh parses; only our checks
   are instrumented).
 
 Engines: ``atheris`` (libFuzzer, when installed: ``pip install atheris``) or ``builtin`` (a small
@@ -78,7 +78,8 @@ def _write_with(fn: Callable[[str], None], suffix: str) -> bytes:
 def _seeds_exr() -> list[bytes]:
     import numpy as np
 
-    from phyir import exr, io
+    from phyir import io
+    from phyir.io import exr
 
     out = [_write_with(lambda p: io.save_panorama(_image(4, 8, 0), p), ".exr"),
            _write_with(lambda p: io.save_panorama(_image(4, 8, 1), p, half=True), ".exr")]
@@ -117,7 +118,8 @@ def _seeds_scene() -> list[bytes]:
 def _seeds_hdr() -> list[bytes]:
     import numpy as np
 
-    from phyir import io, rgbe
+    from phyir import io
+    from phyir.io import rgbe
 
     out = [_write_with(lambda p: io.save_panorama(_image(4, 8, 0), p), ".hdr"),
            _write_with(lambda p: io.save_panorama(_image(8, 16, 1), p), ".hdr")]  # RLE scanlines (W >= 8)
@@ -180,13 +182,13 @@ def _read_image(path: str) -> None:
 
 
 def _read_mesh(path: str) -> None:
-    from viewer.objects import load_mesh
+    from phyir.insert.objects import load_mesh
 
     m = load_mesh(path)
     assert len(m.faces) and m.faces.max() < len(m.vertices)
 
 
-_IMAGE_MODULES = ("phyir.exr", "phyir.rgbe", "phyir.ldr", "phyir.io", "phyir.scene")
+_IMAGE_MODULES = ("phyir.io.exr", "phyir.io.rgbe", "phyir.io.ldr", "phyir.io", "phyir.scene")
 _EXR_TOKENS = (b"channels\x00chlist\x00", b"compression\x00compression\x00", b"dataWindow\x00box2i\x00",
                b"displayWindow\x00box2i\x00", b"lineOrder\x00lineOrder\x00", b"name\x00string\x00",
                b"type\x00string\x00", b"scanlineimage", b"tiledimage", b"probeGrid", b"probeSize",
@@ -200,7 +202,7 @@ TARGETS: dict[str, Target] = {
     "png": Target("png", ".png", _seeds_png, _IMAGE_MODULES,
                   (b"IHDR", b"IDAT", b"IEND", b"PLTE", b"tRNS", b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff",
                    b"\x00\x00\x00\x00", b"\x10\x06", b"\x08\x02")),
-    "mesh": Target("mesh", ".obj", _seeds_mesh, ("viewer.objects",),
+    "mesh": Target("mesh", ".obj", _seeds_mesh, ("phyir.insert.objects",),
                    (b"v ", b"f ", b"vn ", b"vt ", b"nan", b"inf", b"1e30", b"-1", b"0", b"/", b"\n",
                     b"o ", b"g ", b"usemtl ")),
 }
@@ -563,7 +565,7 @@ def fuzz_target(name: str, seconds: float, out: Path, *, engine: str = "auto", t
         if left < 1 or runs >= 50:
             break
         runs += 1
-        cmd = [sys.executable, "-m", "phyir.fuzz", "--child", "--target", name, "--seconds", f"{left:.1f}",
+        cmd = [sys.executable, "-m", "phyir.io.fuzz", "--child", "--target", name, "--seconds", f"{left:.1f}",
                "--out", str(out), "--engine", engine, "--timeout", str(timeout), "--seed", str(seed + runs),
                "--max-len", str(max_len)]
         with open(work / f"log-{runs}.txt", "wb") as logf:
@@ -626,7 +628,7 @@ def _libfuzzer_coverage(work: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m phyir.fuzz", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m phyir.io.fuzz", description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=60.0, help="time per target (s)")
     p.add_argument("--target", action="append", choices=(*TARGET_NAMES, "all"),
                    help="reader to fuzz (repeatable; default all)")
@@ -643,7 +645,7 @@ def main(argv: list[str] | None = None) -> int:
         return _child_main(args)
     names = TARGET_NAMES if not args.target or "all" in args.target else tuple(dict.fromkeys(args.target))
     if args.engine == "atheris" and not atheris_available():
-        print("phyir.fuzz: atheris is not installed (pip install atheris); use --engine builtin",
+        print("phyir.io.fuzz: atheris is not installed (pip install atheris); use --engine builtin",
               file=sys.stderr)
         return 2
     out = Path(args.out)

@@ -17,11 +17,11 @@ import torch
 from phyir.errors import InputError
 
 FORMAT = "phyir-weights-1"
-WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "assets" / "weights"
 
 
 def default_weights_path() -> Path:
-    """The shipped lite model: ``phyir/weights/phyir-lite.safetensors``."""
+    """The shipped lite model: ``phyir/assets/weights/phyir-lite.safetensors``."""
     return WEIGHTS_DIR / "phyir-lite.safetensors"
 
 
@@ -129,9 +129,9 @@ def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = No
     return save_weights(model, dst, info, half=True)
 
 
-if __name__ == "__main__":  # python -m phyir.weights ship SRC DST
+if __name__ == "__main__":  # python -m phyir.learn.weights ship SRC DST
     import sys
 
     if len(sys.argv) != 4 or sys.argv[1] != "ship":
-        sys.exit("usage: python -m phyir.weights ship SRC.safetensors DST.safetensors")
+        sys.exit("usage: python -m phyir.learn.weights ship SRC.safetensors DST.safetensors")
     print(ship(sys.argv[2], sys.argv[3]))

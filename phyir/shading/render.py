@@ -1,4 +1,4 @@
-"""The rendering layer: shade pixels with the BRDF of :mod:`phyir.brdf` under distant lighting.
+"""The rendering layer: shade pixels with the BRDF of :mod:`phyir.shading.brdf` under distant lighting.
 
 Two entry points, both batched, device-agnostic and differentiable with respect to normals, view
 vectors, materials and lighting:
@@ -25,7 +25,7 @@ Methods
 ``"uniform"``
     ``spp`` directions uniform on the hemisphere (the baseline of the benchmark).
 ``"prefiltered"``
-    Split sum, see :mod:`phyir.prefilter`, looked up twice around the specular lobe's mean direction
+    Split sum, see :mod:`phyir.shading.prefilter`, looked up twice around the specular lobe's mean direction
     along its axis in the plane of n and v (:func:`_lobe_taps`, shaped by the measured moments of
     the lobe): no samples, biased (measured in docs/rendering.md).
 
@@ -46,7 +46,7 @@ Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/ren
 ``mirror``   R < :data:`MIRROR_ROUGHNESS`: the specular lobe is one look-up in the reflected
              direction times the lobe's directional albedo (DFG table); slight bias.
 ``rough``    when the specular lobe can't exceed :data:`ROUGH_SPEC_RATIO` of the diffuse lobe under
-             any lighting (π max_l f_s / (B(1-M)) from :func:`phyir.prefilter.specular_peak_table`)
+             any lighting (π max_l f_s / (B(1-M)) from :func:`phyir.shading.prefilter.specular_peak_table`)
              pixels take half of ``spp``, cosine and environment samples only (:data:`ROUGH_SPLIT`),
              which still estimate the specular lobe, so this costs variance, not bias.
              ``ROUGH_ALL_COSINE = True`` spends all ``spp`` on the
@@ -55,7 +55,7 @@ Skips (``skips=True`` or a set of names from :data:`SKIPS`; measured in docs/ren
 Precision: the layer always computes in float32 (float64 if given float64) with autocast disabled,
 because GGX at R = 0 spans ~1e12 in value and gradient, beyond float16/bfloat16 — except the
 prefiltered level maps' matmul, a normalised non-negative filter of radiance, which takes bfloat16
-on CPUs that multiply it natively (:data:`phyir.prefilter.LEVEL_PRECISION`).
+on CPUs that multiply it natively (:data:`phyir.shading.prefilter.LEVEL_PRECISION`).
 """
 
 from __future__ import annotations
@@ -70,10 +70,12 @@ import torch.nn.functional as F
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from phyir import pano, prefilter
-from phyir.brdf import alpha_from_roughness, brdf, cosines, f0_from_material, ggx_d
+from phyir import pano
 from phyir.errors import InputError
-from phyir.sampling import (
+from phyir.scene import PanoScene, SceneError
+from phyir.shading import prefilter
+from phyir.shading.brdf import alpha_from_roughness, brdf, cosines, f0_from_material, ggx_d
+from phyir.shading.sampling import (
     cosine_hemisphere,
     cosine_hemisphere_pdf,
     ggx_half_vector,
@@ -85,7 +87,6 @@ from phyir.sampling import (
     sample_linear,
     uniform_hemisphere,
 )
-from phyir.scene import PanoScene, SceneError
 
 METHODS = ("importance", "uniform", "prefiltered")
 SKIPS = frozenset({"invalid", "emissive", "mirror", "rough"})
@@ -553,8 +554,8 @@ def _sh_radiance(sh: Tensor, index: Tensor, weight: Tensor, d: Tensor) -> Tensor
 
 
 def _lobe_shape(nv: Tensor, rough: Tensor, f0: Tensor) -> Tensor:
-    """``[p, 3]`` (f, d, alpha) of :func:`phyir.prefilter.lobe_shape_table`, linear in F0 between
-    its tables at :data:`phyir.prefilter.LOBE_SHAPE_F0` (F0: the mean over channels)."""
+    """``[p, 3]`` (f, d, alpha) of :func:`phyir.shading.prefilter.lobe_shape_table`, linear in F0 between
+    its tables at :data:`phyir.shading.prefilter.LOBE_SHAPE_F0` (F0: the mean over channels)."""
     both = prefilter.lookup_table(prefilter.lobe_shape_tables(device=nv.device, dtype=nv.dtype), nv, rough)
     lo, hi = prefilter.LOBE_SHAPE_F0
     t = ((f0.mean(-1, keepdim=True) - lo) / (hi - lo)).clamp(0, 1)
@@ -564,7 +565,7 @@ def _lobe_shape(nv: Tensor, rough: Tensor, f0: Tensor) -> Tensor:
 def _lobe_taps(n: Tensor, v: Tensor, f: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
     """The split sum's two look-up directions: the lobe's mean direction ``normalize(lerp(n, r, f))``
     (r the mirror direction) moved by the tangent offsets ``+-d`` along the lobe's axis in the plane
-    of n and v (:func:`phyir.prefilter.lobe_shape_table`; ``f, d [p]``)."""
+    of n and v (:func:`phyir.shading.prefilter.lobe_shape_table`; ``f, d [p]``)."""
     mu = F.normalize(torch.lerp(n, reflect(v, n), f[:, None]), dim=-1)
     axis = n - (n * mu).sum(-1, keepdim=True) * mu  # zero at n.v = 1 or R = 1, where d = 0
     axis = axis / axis.norm(dim=-1, keepdim=True).clamp(min=1e-4)

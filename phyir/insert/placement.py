@@ -166,7 +166,7 @@ class Drag:
 
 def support_below(scene: PanoScene, point: np.ndarray, surface=None) -> Surface | None:
     """The surface straight below ``point`` (marching the depth panorama along -y), or None."""
-    from phyir.projection import DepthSurface
+    from phyir.lighting.projection import DepthSurface
 
     _require_depth(scene)
     surf = surface if surface is not None else DepthSurface.from_scene(scene)

@@ -74,9 +74,9 @@ def pair_noise(a: Tensor, b: Tensor, mask: Tensor | None = None) -> float:
 
 
 def _peak_mb(fn: Callable[[], object], device: str) -> float | None:
-    """Peak memory (MB) one call of ``fn`` adds (:func:`phyir.bench_measure.peak_memory`); None where
+    """Peak memory (MB) one call of ``fn`` adds (:func:`phyir.bench.measure.peak_memory`); None where
     it can't be measured."""
-    from phyir.bench_measure import peak_memory
+    from phyir.bench.measure import peak_memory
 
     return peak_memory(fn, device).get("extra_peak_mb")
 
@@ -87,7 +87,7 @@ def _mb(x: float | None) -> str:
 
 def _timed(device: str, fn: Callable, *args, **kwargs):
     """``(fn(*args, **kwargs), wall seconds, CPU seconds)``."""
-    from phyir.bench_measure import is_cuda
+    from phyir.bench.measure import is_cuda
 
     sync = torch.cuda.synchronize if is_cuda(device) else (lambda: None)
     sync()
@@ -208,14 +208,14 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     stages taking seconds each.
     """
     cfg = dict(QUICK if quick else FULL)
-    from phyir.bench_measure import torch_threads
+    from phyir.bench.measure import torch_threads
 
     with torch_threads(threads):
         return _run(Path(out_dir), cfg, device, log)
 
 
 def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
-    from phyir.bench_report import save_target
+    from phyir.bench.report import save_target
 
     result: dict = {"config": {**cfg, "device": device, "threads": torch.get_num_threads(),
                                "torch": torch.__version__, "seeds": list(SEEDS),
@@ -318,7 +318,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     for s in result["scenes"]:

@@ -11,7 +11,8 @@ brought back to the scene's own resolution) and scored against its ground truth:
   position of each cell (as :func:`phyir.evaluation.evaluate_model`'s ``model/lnet``), and its mean
   over the three materials ``relight_mean``.
 
-Weights: ``$PHYIR_BENCH_WEIGHTS`` or the shipped lite weights (:func:`phyir.weights.default_weights_path`)
+Weights: ``$PHYIR_BENCH_WEIGHTS`` or the shipped lite weights
+(:func:`phyir.learn.weights.default_weights_path`)
 for ``lite``; ``full`` ships none, so it is timed with random weights and its errors are None
 (JSON null, "n/a" in the table) -- as are lite's when no weights exist.
 
@@ -58,7 +59,7 @@ def eval_scenes(cfg: dict, out: Path, quick: bool, log: Callable[[str], None]) -
 
     root = os.environ.get("PHYIR_BENCH_DATA")
     if root:
-        from phyir.data import read_manifest
+        from phyir.learn.datasets import read_manifest
 
         files = [Path(root) / f for f in read_manifest(root).get("test", [])]
         files = [f for f in files if f.is_file()][:cfg["scenes"]]
@@ -86,7 +87,7 @@ def lnet_relight(pred: PanoScene, gt: PanoScene, cfg: dict) -> dict[str, float]:
     from phyir import pano
     from phyir.evaluation import _spread, lighting_metrics
     from phyir.inference import lnet_probes_at
-    from phyir.projection import probe_positions
+    from phyir.lighting.projection import probe_positions
 
     Hp, Wp = gt.probe_grid
     cells = _spread(Hp * Wp, cfg["relight"])[:cfg["relight"]]
@@ -100,8 +101,8 @@ def lnet_relight(pred: PanoScene, gt: PanoScene, cfg: dict) -> dict[str, float]:
 
 def _model(size: str, device: str, log: Callable[[str], None]):
     """(model, weights name or None) -- trained weights for lite when they exist, else random."""
+    from phyir.learn.weights import default_weights_path, load_model
     from phyir.nets.model import PhyIRModel
-    from phyir.weights import default_weights_path, load_model
 
     if size == "lite":
         path = Path(os.environ.get("PHYIR_BENCH_WEIGHTS") or default_weights_path())
@@ -119,7 +120,7 @@ def _model(size: str, device: str, log: Callable[[str], None]):
 def bench_config(model, weights: str | None, net_size: tuple[int, int], scenes: list[PanoScene],
                  cfg: dict, device: str) -> dict:
     """Time and (with trained weights) errors of one model at one network resolution."""
-    from phyir.bench_measure import time_calls
+    from phyir.bench.measure import time_calls
     from phyir.evaluation import pixel_metrics
     from phyir.inference import predict
 
@@ -165,8 +166,8 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
               repeats: int | None = None, threads: int | None = None,
               log: Callable[[str], None] = print) -> dict:
     """Run the model benchmark; write ``model.json`` and ``model.png``."""
-    from phyir.bench_measure import torch_threads
-    from phyir.bench_report import target_config
+    from phyir.bench.measure import torch_threads
+    from phyir.bench.report import target_config
 
     cfg = target_config(FULL, QUICK, quick, repeats)
     if os.environ.get("PHYIR_BENCH_MODELS"):
@@ -177,7 +178,7 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
 
 
 def _run(out: Path, cfg: dict, quick: bool, device: str, log: Callable[[str], None]) -> dict:
-    from phyir.bench_report import save_target
+    from phyir.bench.report import save_target
     from phyir.io import load_scene
 
     out.mkdir(parents=True, exist_ok=True)
@@ -248,7 +249,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     keys = ("depth_abs_rel", "albedo_mse", "relight_mean")
     fig, axes = plt.subplots(1, len(keys) + 1, figsize=(4.2 * (len(keys) + 1), 3.8))

@@ -15,9 +15,9 @@ outputs compared with the baseline's (relative RMSE per layer; 0 means the skip 
                    with the grid's probes interpolated at the same points.  vs ``reuse_layers``.
 
 The rendering layer's own skips (emissive, mirror and rough pixels) are measured by
-:func:`phyir.bench_render.bench_skips` on its procedural mixed scene against a converged reference.
+:func:`phyir.bench.render.bench_skips` on its procedural mixed scene against a converged reference.
 
-The input is the deterministic HDR panorama of :func:`phyir.bench_modules.bench_image` at twice the
+The input is the deterministic HDR panorama of :func:`phyir.bench.modules.bench_image` at twice the
 network's resolution (so predict upsamples, as it does for real photographs); the model is the
 shipped lite weights when present, else a seeded random lite model (recorded in the result).
 """
@@ -51,8 +51,8 @@ VARIANTS = {
 
 def _model(device: str):
     from phyir.inference import load_cached_model
+    from phyir.learn.weights import default_weights_path
     from phyir.nets.model import PhyIRModel
-    from phyir.weights import default_weights_path
 
     path = default_weights_path()
     if path.exists():
@@ -72,7 +72,7 @@ def _scene_file(scene, folder: str, name: str, probes: bool):
 
 
 def _diff(out, ref, layers) -> dict[str, float]:
-    from phyir.bench_render import rel_rmse
+    from phyir.bench.render import rel_rmse
 
     return {k: rel_rmse(getattr(out, k).float(), getattr(ref, k).float()) for k in layers
             if getattr(out, k) is not None and getattr(ref, k) is not None}
@@ -80,10 +80,10 @@ def _diff(out, ref, layers) -> dict[str, float]:
 
 def predict_variants(cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     from phyir import predict
-    from phyir.bench_measure import time_calls
-    from phyir.bench_modules import bench_image
+    from phyir.bench.measure import time_calls
+    from phyir.bench.modules import bench_image
     from phyir.inference import OUTPUTS, lnet_probes_at
-    from phyir.projection import surface_points
+    from phyir.lighting.projection import surface_points
 
     Hn, Wn = cfg["net_size"]
     image = bench_image(2 * Hn, 2 * Wn)
@@ -135,13 +135,13 @@ def predict_variants(cfg: dict, device: str, log: Callable[[str], None]) -> dict
 
 
 def _diff_t(a: torch.Tensor, b: torch.Tensor) -> float:
-    from phyir.bench_render import rel_rmse
+    from phyir.bench.render import rel_rmse
 
     return rel_rmse(a.float(), b.float())
 
 
 def render_skips(cfg: dict, device: str, log: Callable[[str], None]) -> list[dict]:
-    from phyir.bench_render import bench_scene, bench_skips
+    from phyir.bench.render import bench_scene, bench_skips
 
     H, W = cfg["size"]
     log(f"skips bench: rendering layer skips, mixed scene {H}x{W}, importance {cfg['skip_spp']} spp, "
@@ -158,8 +158,8 @@ def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = 
     cfg["render"] = dict(cfg["render"])
     if repeats is not None:
         cfg["repeats"] = cfg["render"]["repeats"] = repeats
-    from phyir.bench_measure import torch_threads
-    from phyir.bench_report import save_target
+    from phyir.bench.measure import torch_threads
+    from phyir.bench.report import save_target
 
     with torch_threads(threads):
         result = {"config": {**cfg, "device": device, "threads": torch.get_num_threads()},
@@ -226,7 +226,7 @@ def plot(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from phyir.bench_report import save_figure
+    from phyir.bench.report import save_figure
 
     rows = result["predict"]["rows"]
     names = list(rows)

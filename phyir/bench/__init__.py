@@ -1,0 +1,1 @@
+"""``phyir bench``: the harness (measure, report) and every benchmark target."""

@@ -1,0 +1,1 @@
+"""Learning: training datasets, losses, the four-stage training loop, weights files."""

@@ -1,0 +1,1 @@
+"""Lighting from a panorama: projection probes, dominant lights, lighting at inserted objects."""
