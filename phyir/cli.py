@@ -1,15 +1,16 @@
 """``phyir``: one command with subcommands.
 
-Each subcommand lives in ``phyir/commands/<name>.py`` with ``HELP`` (one line),
-``add_arguments(parser)`` and ``run(args) -> int``.  Command modules import heavy dependencies inside
-``run`` so ``phyir --help`` stays fast.
+Each subcommand is a module with ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``:
+the library's own in ``phyir/commands/<name>.py``, others (``insert``, from the viewer package, which
+owns GL) registered in the ``phyir.commands`` entry-point group, so the library never names the app.
+Command modules import heavy dependencies inside ``run`` so ``phyir --help`` stays fast.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
+import importlib.metadata
 import os
 import sys
 
@@ -19,8 +20,21 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from phyir import __version__
 from phyir.errors import PhyIRError
 
-# Display order of subcommands; a name whose module doesn't exist yet is left out.
-COMMANDS = ("info", "synth", "train", "predict", "eval", "insert", "bench")
+# The library's subcommands, in display order; plug-ins (entry points) are placed by PLUGIN_ORDER.
+COMMANDS = ("info", "synth", "train", "predict", "eval", "bench")
+PLUGIN_GROUP = "phyir.commands"
+PLUGIN_ORDER = {"insert": COMMANDS.index("bench")}  # listed before ``bench``
+
+
+def command_modules() -> dict[str, str]:
+    """Subcommand name -> module, the library's and the installed plug-ins', in display order."""
+    mods = {name: f"phyir.commands.{name}" for name in COMMANDS}
+    order = list(mods)
+    for ep in sorted(importlib.metadata.entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
+        if ep.name not in mods:
+            order.insert(PLUGIN_ORDER.get(ep.name, len(order)), ep.name)
+            mods[ep.name] = ep.value
+    return {name: mods[name] for name in order}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,10 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"phyir {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        modname = f"phyir.commands.{name}"
-        if importlib.util.find_spec(modname) is None:
-            continue
+    for name, modname in command_modules().items():
         mod = importlib.import_module(modname)
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)

@@ -47,7 +47,7 @@ stamp=.venv/.phyir-installed
 hash=$(sha1sum pyproject.toml | cut -c1-40)
 if [ "$py" != ".venv/bin/python" ] || [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$hash" ]; then
   log "installing phyir (editable) and its dependencies"
-  "$py" -m pip install -q -e ".[dev]"
+  "$py" -m pip install -q -e ".[dev,viewer]"
   [ "$py" = ".venv/bin/python" ] && echo "$hash" > "$stamp"
 fi
 bindir=$(dirname "$("$py" -c 'import sys; print(sys.executable)')")

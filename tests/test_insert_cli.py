@@ -28,7 +28,7 @@ def scene_file(tmp_path_factory):
 
 
 def test_command_module_imports_no_gl():
-    code = ("import sys, argparse, phyir.commands.insert as m; m.add_arguments(argparse.ArgumentParser());"
+    code = ("import sys, argparse, viewer.commands.insert as m; m.add_arguments(argparse.ArgumentParser());"
             "print(any(k in sys.modules for k in ('moderngl', 'viewer.insertion', 'trimesh')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

@@ -3,7 +3,8 @@
 Each target is a module with ``run_bench(out_dir, *, quick, device, repeats, threads, log) -> dict`` that
 writes ``<target>.json`` and ``<target>.png`` into ``out_dir`` and prints its table; it may define
 ``format_table(result) -> str`` and ``key_numbers(result) -> dict[str, float]`` for the report.  Add a
-target by adding it to :data:`TARGETS`; ``phyir bench`` alone runs every target whose module exists.
+target by adding it to :data:`BUILTIN_TARGETS`, or, from another package, to the ``phyir.bench_targets``
+entry-point group (the viewer's ``shading``); ``phyir bench`` alone runs every target whose module exists.
 After the targets, ``report.md`` and ``report.json`` gather them all (:mod:`phyir.bench.report`).
 """
 
@@ -11,20 +12,23 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import importlib.util
 
 HELP = ("benchmark PhyIR: time and error of every stage; per target JSON + PNG, and report.md/.json "
         "(targets: modules, skips, render, synth, model, shading)")
 
 # target name -> module implementing run_bench
-TARGETS = {
+BUILTIN_TARGETS = {
     "modules": "phyir.bench.modules",  # per-module time and memory vs the supplement's Table 1
     "skips": "phyir.bench.skips",  # time saved and result changed by every skip
     "render": "phyir.bench.render",  # rendering layer: methods x sample counts, time vs error
     "synth": "phyir.bench.synth",  # data generator: samples per pixel vs noise
     "model": "phyir.bench.model",  # model size x resolution vs depth / albedo / relighting error
-    "shading": "viewer.bench_shading",  # the viewer's shading settings vs the converged reference
 }
+# plug-ins: the viewer's ``shading`` (its shading settings vs the converged reference)
+TARGETS = BUILTIN_TARGETS | {ep.name: ep.value
+                             for ep in importlib.metadata.entry_points(group="phyir.bench_targets")}
 
 
 def available() -> list[str]:

@@ -1,0 +1,1 @@
+"""Subcommands of the phyir CLI that need GL, registered through the ``phyir.commands`` entry point group."""
