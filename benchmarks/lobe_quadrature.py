@@ -1,6 +1,6 @@
 """Alternatives to the split sum for the fast path, measured on ``phyir bench render``'s scenes
 (128x256, a probe per 2x2 pixels, probes of 16x32; relative RMSE of the image against converged
-Monte Carlo, as the bench).  Session 7 measured them and kept none (docs/rendering.md, Findings):
+Monte Carlo, as the bench).  None of them was kept (docs/rendering.md, Findings):
 
 * ``fis K``: filtered importance sampling as the viewer's object shader does it (K GGX directions of
   a Hammersley set, each looked up in the probes' area-downsampled mip chain at the level of its
@@ -33,9 +33,12 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
-from phyir.bench.render import Reference, _shaded_mask, bench_scene
-from phyir.shading import prefilter, render
+from phyir.bench.render_measure import Reference, interp_time, loglog
+from phyir.bench.render_scenes import bench_scene, shaded_mask
+from phyir.shading import prefilter, render, split_sum
 from phyir.shading.brdf import alpha_from_roughness, f0_from_material, fresnel_ue4, ggx_d, visibility
+from phyir.shading.pixels import select
+from phyir.shading.probe_mixture import unit_uv
 from phyir.shading.sampling import ggx_half_vector, local_to_world, point_set, reflect
 
 
@@ -51,9 +54,9 @@ def _cpu_ms(fn: Callable[[], object], n: int = 5) -> float:
 
 def _pixels(scene, sel: Tensor | None = None):
     """The renderer's flat inputs of the shaded pixels (or of ``sel``, flat pixel indices)."""
-    px, light, _, _ = render._scene_inputs(scene, render._skip_set(True))
+    px, light, _, _ = render.scene_inputs(scene)
     idx = (~px.skip).nonzero()[:, 0] if sel is None else sel
-    n, v, rough, base, metal = (render._select(t, idx) for t in (px.n, px.v, px.rough, px.base, px.metal))
+    n, v, rough, base, metal = (select(t, idx) for t in (px.n, px.v, px.rough, px.base, px.metal))
     return px, light, idx, n, v, rough, f0_from_material(base, metal), light.index[idx], light.weight[idx]
 
 
@@ -121,7 +124,7 @@ def fis_specular(scene, K: int) -> tuple[Tensor, Tensor]:
     lod = (0.5 * torch.log2(1 / (K * pdf.clamp(min=1e-12) * texel))).clamp(0, len(mips) - 1).reshape(-1)
     i0 = lod.floor().long().clamp(max=len(mips) - 2)
     t = lod - i0
-    uv = render._unit_uv(l)
+    uv = unit_uv(l)
     uv = (uv[0].reshape(-1, 1), uv[1].reshape(-1, 1))
     ii, ww = index.repeat_interleave(K, 0), weight.repeat_interleave(K, 0)
     rad = torch.zeros(len(idx) * K, 3, dtype=n.dtype)
@@ -131,7 +134,8 @@ def fis_specular(scene, K: int) -> tuple[Tensor, Tensor]:
         if r.numel():
             hl, wl = m.shape[-2:]
             table = m.permute(2, 3, 0, 1).reshape(hl * wl, -1, 3).contiguous()
-            rad.index_add_(0, r, render._lookup(table, hl, wl, ii[r], ww[r], (uv[0][r], uv[1][r]), share[r]))
+            look = split_sum.lookup(table, hl, wl, ii[r], ww[r], (uv[0][r], uv[1][r]), share[r])
+            rad.index_add_(0, r, look)
     fr = fresnel_ue4(vh[..., None], f0[:, None, :])
     return idx, (fr * wgt[..., None] * rad.reshape(len(idx), K, 3)).mean(1)
 
@@ -141,15 +145,15 @@ def light_in_lobe(scene) -> tuple[Tensor, Tensor]:
     prefiltered levels the split sum blends, at its two look-up directions."""
     px, light, idx, n, v, rough, f0, index, weight = _pixels(scene)
     nv = (n * v).sum(-1)
-    shape = render._lobe_shape(nv, rough[:, 0], f0)
+    shape = split_sum.lobe_shape(nv, rough[:, 0], f0)
     alphas = prefilter.PREFILTER_ALPHAS
     i0, _ = prefilter.level_coords_alpha(shape[:, 2], alphas)
     pf = prefilter.prefiltered(light.probes, alphas)
-    taps = torch.stack(render._lobe_taps(n, v, shape[:, 0], shape[:, 1]), 1)
-    uv = render._unit_uv(taps)
+    taps = torch.stack(split_sum.lobe_taps(n, v, shape[:, 0], shape[:, 1]), 1)
+    uv = unit_uv(taps)
     ones = torch.ones(len(idx), dtype=n.dtype)
     sh = pf.sh.permute(1, 2, 0).reshape(light.probes.shape[0], -1)
-    lv = torch.stack([render._level_radiance(pf, light.probes, sh, lvl, index, weight, taps, uv, ones)
+    lv = torch.stack([split_sum.level_radiance(pf, light.probes, sh, lvl, index, weight, taps, uv, ones)
                       for lvl in range(len(pf.plan))], 1).mean(-1)  # [p, levels]
     ar = torch.arange(len(idx))
     alb = prefilter.specular_albedo(nv, rough[:, 0], f0).mean(-1)
@@ -171,13 +175,13 @@ def _pattern(s: str) -> tuple[int, int]:
 def measure(kind: str, seed: int, args: argparse.Namespace) -> str:
     """One scene's line of the printout."""
     scene = bench_scene(kind, seed=seed)
-    ref = Reference(scene, args.ref_spp, _shaded_mask(scene))
+    ref = Reference(scene, args.ref_spp, shaded_mask(scene))
 
     def err(img: Tensor) -> str:
         return f"{100 * ref.errors({'image': img, 'diffuse': img, 'specular': img})['err_image']:.2f}%"
 
     def split_sum() -> dict[str, Tensor]:
-        prefilter._cache.clear()
+        prefilter.clear_cache()
         return render.render_scene(scene, method="prefiltered")
 
     out = split_sum()
@@ -212,16 +216,14 @@ def _against_importance(path: str, kind: str, seed: int, err_pct: float, ms: flo
     curve; CPU time at that spp from its seed-0 timing curve) against ``ms``."""
     import json
 
-    from phyir.bench.render import _interp_time, _loglog
-
     res = json.loads(open(path).read())["scenes"][kind]
     row = next((r for r in res["seeds"]["rows"] if r["seed"] == seed), None)
     if row is None:
         return "(seed not in the bench run)"
     spp = [int(k) for k in row["is_errors"]]
-    need = _loglog(spp, list(row["is_errors"].values()), err_pct / 100)
+    need = loglog(spp, list(row["is_errors"].values()), err_pct / 100)
     isr = [r for r in res["rows"] if r["method"] == "importance"]
-    t = 1e3 * _interp_time([r["spp"] for r in isr], [r["cpu_s"] for r in isr], need)
+    t = 1e3 * interp_time([r["spp"] for r in isr], [r["cpu_s"] for r in isr], need)
     return f"(= importance {need:.0f} spp, {t:.0f} ms: {t / ms:.1f}x)"
 
 

@@ -29,10 +29,12 @@ import argparse
 
 import torch
 
-from phyir.bench.render import Reference, _shaded_mask, bench_scene
-from phyir.lighting.object_lighting import _quadrature
-from phyir.shading import prefilter, render
-from phyir.shading.brdf import brdf_vectors
+from phyir.bench.render_measure import Reference
+from phyir.bench.render_scenes import bench_scene, shaded_mask
+from phyir.lighting.object_lighting import quadrature
+from phyir.shading import prefilter, render, split_sum
+from phyir.shading.brdf import brdf_vectors, f0_from_material
+from phyir.shading.pixels import unflat
 
 FINE_ALPHAS = (0.0, 0.02, 0.05, 0.08, 0.12, 0.16, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 SUPER = 16
@@ -42,28 +44,26 @@ def _prefiltered(scene, alphas: tuple[float, ...], texels_per_alpha: float) -> d
     keep = prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA
     prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA = alphas, texels_per_alpha
     try:  # the operator cache is keyed by alphas, not by the level sizes: clear it both ways
-        prefilter._stacked_operator_cpu.cache_clear()
-        prefilter._cache.clear()
+        prefilter.clear_cache(operators=True)
         return render.render_scene(scene, method="prefiltered")
     finally:
         prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA = keep
-        prefilter._stacked_operator_cpu.cache_clear()
-        prefilter._cache.clear()
+        prefilter.clear_cache(operators=True)
 
 
 def _lookups(n: torch.Tensor, v: torch.Tensor, rough: torch.Tensor, f0: torch.Tensor):
     """The renderer's two look-up directions ``[p, 3]`` each and their alpha ``[p]``."""
-    shape = render._lobe_shape((n * v).sum(-1), rough, f0)
-    return render._lobe_taps(n, v, shape[:, 0], shape[:, 1]), shape[:, 2]
+    shape = split_sum.lobe_shape((n * v).sum(-1), rough, f0)
+    return split_sum.lobe_taps(n, v, shape[:, 0], shape[:, 1]), shape[:, 2]
 
 
 def _ideal_split_sum(scene, px, light, diffuse: torch.Tensor, chunk: int = 512) -> dict:
     """Layers with the ideal split sum as the specular (``px``, ``light``: the scene's
-    :func:`phyir.shading.render._scene_inputs`; ``diffuse``: the renderer's)."""
-    d, weights = prefilter._fine_grid(*light.probes.shape[-2:])  # directions, solid angle x taps
+    :func:`phyir.shading.render.scene_inputs`; ``diffuse``: the renderer's)."""
+    d, weights = prefilter.fine_grid(*light.probes.shape[-2:])  # directions, solid angle x taps
     d, weights = d.to(px.n.dtype), weights.to(px.n.dtype)
     nv = (px.n * px.v).sum(-1)
-    f0 = render.f0_from_material(px.base, px.metal)
+    f0 = f0_from_material(px.base, px.metal)
     looks, alpha = _lookups(px.n, px.v, px.rough[:, 0], f0)
     probes = light.probes.reshape(light.probes.shape[0], 3, -1)
     rad = torch.zeros_like(px.n)
@@ -75,13 +75,13 @@ def _ideal_split_sum(scene, px, light, diffuse: torch.Tensor, chunk: int = 512) 
             rad[e] += 0.5 * (env * (kernel / kernel.sum(-1, keepdim=True))[:, None]).sum(-1)
     spec = torch.where(px.skip[:, None], 0.0, prefilter.specular_albedo(nv, px.rough[:, 0], f0) * rad)
     H, W = scene.size
-    spec = render._unflat(spec, 1, H, W, False)
+    spec = unflat(spec, 1, H, W, False)
     return {"diffuse": diffuse, "specular": spec, "image": diffuse + spec}
 
 
 def _grid(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Directions ``[F, 3]``, solid angles and bilinear taps of a SUPER x SUPER grid per probe texel."""
-    d, omega, idx, wgt = _quadrature(h, w, SUPER)
+    d, omega, idx, wgt = quadrature(h, w, SUPER)
     return d.T, omega, idx, wgt
 
 
@@ -97,7 +97,7 @@ def _pixel_terms(px, light, p: int, grid) -> tuple[float, float, float, float]:
     cos = (d @ n).clamp(min=0)
     truth = float((fs[0] * cos * radiance[:, 0] * omega).sum())
     nv = float(n @ v)
-    f0 = render.f0_from_material(base, metal)
+    f0 = f0_from_material(base, metal)
     looks, alpha = _lookups(n[None], v[None], rough, f0[None])
     k = sum(prefilter.lobe_kernel(d @ look[0], alpha) * omega for look in looks)
     albedo = prefilter.specular_albedo(torch.tensor([nv], dtype=torch.float64), rough, f0[None])[0]
@@ -116,10 +116,10 @@ def main() -> None:
     torch.set_grad_enabled(False)
     for seed in args.seeds:
         scene = bench_scene(args.kind, seed=seed)
-        ref = Reference(scene, args.ref_spp, _shaded_mask(scene))
+        ref = Reference(scene, args.ref_spp, shaded_mask(scene))
         out = _prefiltered(scene, prefilter.PREFILTER_ALPHAS, prefilter.LEVEL_TEXELS_PER_ALPHA)
         fine = _prefiltered(scene, FINE_ALPHAS, 1e-9)  # 1e-9: levels never halved
-        px, light, _, _ = render._scene_inputs(scene, render._skip_set(True))
+        px, light, _, _ = render.scene_inputs(scene)
         ideal = _ideal_split_sum(scene, px, light, out["diffuse"])
         print(f"{args.kind} seed {seed}: image error prefiltered {ref.errors(out)['err_image']:.4f}, "
               f"fine levels {ref.errors(fine)['err_image']:.4f}, "

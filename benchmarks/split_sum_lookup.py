@@ -17,8 +17,9 @@ import argparse
 
 import torch
 
-from phyir.bench.render import Reference, _shaded_mask, bench_scene
-from phyir.shading import render
+from phyir.bench.render_measure import Reference
+from phyir.bench.render_scenes import bench_scene, shaded_mask
+from phyir.shading import render, split_sum
 
 
 def _mirror_lookup(nv: torch.Tensor, rough: torch.Tensor, f0: torch.Tensor) -> torch.Tensor:
@@ -34,18 +35,18 @@ def main() -> None:
     torch.set_grad_enabled(False)
     print("| scene | mirror | lobe-shaped |")
     print("| --- | ---: | ---: |")
-    shaped = render._lobe_shape
+    shaped = split_sum.lobe_shape
     for kind in ("glossy", "metal"):
         for seed in args.seeds:
             scene = bench_scene(kind, seed=seed)
-            ref = Reference(scene, args.ref_spp, _shaded_mask(scene))
+            ref = Reference(scene, args.ref_spp, shaded_mask(scene))
             cells = []
             for lookup in (_mirror_lookup, shaped):
-                render._lobe_shape = lookup
+                split_sum.lobe_shape = lookup
                 try:
                     e = ref.errors(render.render_scene(scene, method="prefiltered"))
                 finally:
-                    render._lobe_shape = shaped
+                    split_sum.lobe_shape = shaped
                 cells.append(f"{e['err_specular']:.4f} ({e['err_image']:.4f})")
             print(f"| {kind} seed {seed} | " + " | ".join(cells) + " |", flush=True)
 

@@ -78,14 +78,14 @@ def evaluate_pair(pred: PanoScene, gt: PanoScene, *, relight: int = 16, spp: int
         pos = probe_positions(gt.depth, gt.normal, gt.probe_grid).reshape(-1, 3) if gt.depth is not None \
             else None
         pp, gp = pred.probes.reshape(-1, 3, *pred.probe_size), gt.probes.reshape(-1, 3, *gt.probe_size)
-        idx = _spread(len(pp), relight)
+        idx = spread(len(pp), relight)
         out |= lighting_metrics(pp[idx], gp[idx], None if pos is None else pos[idx], relight=relight,
                                 spp=spp)
         out["probe_log_mse"] = M.probe_log_mse(pp, gp)  # all probes, not just the relit ones
     return out
 
 
-def _spread(n: int, k: int) -> Tensor:
+def spread(n: int, k: int) -> Tensor:
     """k indices spread evenly over range(n), then the rest (so a prefix of length k is spread)."""
     first = torch.linspace(0, n - 1, max(1, min(k, n))).round().long().unique()
     rest = torch.ones(n, dtype=torch.bool)
@@ -112,8 +112,9 @@ def dataset_means(root: str | os.PathLike, split: str = "train",
     """Per-dataset means of the ``split`` (first ``limit`` scenes) for :func:`means_baseline`: depth,
     base colour [3], roughness, metalness (over non-emissive pixels) and the mean probe [3,h,w] of
     exposure-normalised scenes (:func:`phyir.learn.datasets.exposure_scale`)."""
+    from phyir.color import exposure_scale
     from phyir.io import load_scene
-    from phyir.learn.datasets import exposure_scale, split_files
+    from phyir.learn.datasets import split_files
 
     acc: dict[str, Tensor] = {}
     n_pix = n_mat = n_probe = 0
@@ -143,7 +144,7 @@ def means_baseline(gt: PanoScene, means: dict[str, Tensor]) -> PanoScene:
     """The dataset-means predictor: the training set's mean depth, base colour, roughness and
     metalness everywhere, normals facing the camera, every probe the mean (exposure-normalised) probe
     brought to this image's exposure."""
-    from phyir.learn.datasets import exposure_scale
+    from phyir.color import exposure_scale
 
     H, W = gt.size
     probes = None

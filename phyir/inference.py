@@ -25,7 +25,9 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import nullcontext
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -33,6 +35,7 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.errors import InputError, PhyIRError
+from phyir.filters import guided_upsample
 from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
@@ -46,6 +49,7 @@ DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training re
 # every layer comes back at the input's size: ~140 bytes per input pixel at the peak
 # (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
 MAX_PREDICT_SIZE = (4096, 8192)
+MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
 
@@ -111,15 +115,15 @@ def _check_cancel(cancel) -> None:
         raise Cancelled("prediction cancelled")
 
 
-def load_input(source: str | os.PathLike | Tensor | PanoScene,
-               hdr: bool | None = None) -> tuple[PanoScene, bool]:
+def load_input(source: str | os.PathLike | Tensor | PanoScene, hdr: bool | None = None,
+               limit: Callable[[str, int, int], None] | None = None) -> tuple[PanoScene, bool]:
     """(scene, is_hdr) of a file path, an image tensor [3,H,W] or a scene.  Files: HDR for OpenEXR and
-    Radiance .hdr, LDR (sRGB-decoded to linear by the loader) for PNG/JPEG, unless ``hdr`` says."""
+    Radiance .hdr, LDR (sRGB-decoded to linear by the loader) for PNG/JPEG, unless ``hdr`` says.
+    ``limit(path, H, W)`` is checked on a file's header before it is decoded."""
     from phyir import io
 
     if isinstance(source, (str, os.PathLike)):
-        fmt = io.sniff(source)
-        scene = io.load_scene(source)
+        scene, fmt = io.read_scene(source, limit=limit)
         scene.meta.setdefault("source", Path(source).name)
         return scene, (fmt in ("exr", "hdr")) if hdr is None else hdr
     if isinstance(source, PanoScene):
@@ -132,27 +136,12 @@ def load_input(source: str | os.PathLike | Tensor | PanoScene,
         raise TypeError(f"predict: expected a path, a tensor or a PanoScene, got {type(source).__name__}")
     if scene.batched:
         raise InputError(None, "expected one panorama, got a batch (predict each scene)")
-    H, W = scene.size
-    if H < 16 or abs(W / H - 2) > 0.02:
-        raise InputError(None, f"expected an equirectangular panorama (W = 2H), got {H}x{W}")
+    io.check_panorama_size(None, *scene.size, min_size=MIN_NET_INPUT)
     return scene, True if hdr is None else hdr
 
 
-def _header_size(path: str | os.PathLike) -> tuple[int, int]:
-    """(H, W) of an image or scene file from its header (the main part's, for OpenEXR)."""
-    from phyir import io
-    from phyir.io import exr, ldr, rgbe
-
-    fmt = io.sniff(path)
-    if fmt == "exr":
-        headers = exr.read_headers(path)
-        h = next((h for h in headers if h.name == "scene"), headers[0])
-    else:
-        h = rgbe.read_header(path) if fmt == "hdr" else ldr.read_info(path)
-    return h.height, h.width
-
-
-def _check_predict_size(path: str | os.PathLike | None, H: int, W: int) -> None:
+def check_predict_size(path: str | os.PathLike | None, H: int, W: int) -> None:
+    """Refuse panoramas whose full-resolution layers would not fit in memory (:data:`MAX_PREDICT_SIZE`)."""
     Hm, Wm = MAX_PREDICT_SIZE
     if H * W > Hm * Wm:
         raise InputError(path, f"{H}x{W} is too large to predict at full resolution (at most {Hm}x{Wm}, "
@@ -166,35 +155,17 @@ def net_size_for(H: int, default: tuple[int, int]) -> tuple[int, int]:
     return Hn, 2 * Hn
 
 
-def guided_upsample(src: Tensor, guide_lo: Tensor, guide_hi: Tensor, r: int = GUIDE_RADIUS,
-                    eps: float = GUIDE_EPS) -> Tensor:
-    """Fast guided-filter upsampling (He & Sun 2015) of ``src [C,h,w]`` to the size of ``guide_hi
-    [1,H,W]``: the local linear model src ≈ a·guide + b is fitted at low resolution (windows of
-    (2r+1)², wrapping in longitude), its coefficients are upsampled, and applied to the full-resolution
-    guide, so edges of the output follow edges of the image."""
-    from phyir.nets.gsnet import box_mean
-
-    H, W = guide_hi.shape[-2:]
-    g, p = guide_lo, src
-    m = box_mean(torch.cat((g, g * g, p, g * p)), r)
-    C = p.shape[0]
-    mg, mgg, mp, mgp = m[:1], m[1:2], m[2:2 + C], m[2 + C:]
-    a = (mgp - mg * mp) / ((mgg - mg * mg).clamp_min(0) + eps)
-    b = mp - a * mg
-    ab = pano.resize_area(box_mean(torch.cat((a, b)), r), H, W)
-    return ab[:C] * guide_hi + ab[C:]
-
-
 def _guide(image: Tensor) -> Tensor:
-    from phyir.learn.datasets import luminance
+    from phyir.color import luminance
 
     return torch.log1p(luminance(image.clamp_min(0)))[None]
 
 
 def _upsample_layer(name: str, lo: Tensor, guide_lo: Tensor, guide_hi: Tensor) -> Tensor:
     if name == "depth":
-        return torch.exp(guided_upsample(torch.log(lo.clamp_min(1e-4)), guide_lo, guide_hi))
-    out = guided_upsample(lo, guide_lo, guide_hi)
+        return torch.exp(guided_upsample(torch.log(lo.clamp_min(1e-4)), guide_lo, guide_hi, GUIDE_RADIUS,
+                                     GUIDE_EPS))
+    out = guided_upsample(lo, guide_lo, guide_hi, GUIDE_RADIUS, GUIDE_EPS)
     if name == "normal":
         return out / torch.sqrt((out * out).sum(0, keepdim=True)).clamp_min(1e-8)
     return out.clamp(0, 1)
@@ -212,17 +183,217 @@ def lnet_probes_at(grid_probes: Tensor, points: Tensor) -> Tensor:
 
 
 # ---------------------------------------------------------------------------------------------
-# predict
+# predict: options -> load -> plan -> networks -> upsampling -> lighting
 
 
-def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os.PathLike | None = None,
-            device: str | torch.device | None = None, outputs: Iterable[str] | None = None,
-            probes: str | None = "grid", points: Tensor | None = None, lighting: str | None = None,
-            net_size: tuple[int, int] | None = None, hdr: bool | None = None, model=None,
-            amp: bool = True, progress: Callable[[str, float], None] | None = None,
-            cancel: Callable[[], bool] | threading.Event | None = None) -> PanoScene:
+@dataclass(frozen=True)
+class PredictOptions:
+    """Everything :func:`predict` can be told (see its docstring for each field's meaning)."""
+
+    weights: str | os.PathLike | None = None
+    device: str | torch.device | None = None
+    outputs: Iterable[str] | None = None
+    probes: str | None = "grid"
+    points: Tensor | None = None
+    lighting: str | None = None
+    net_size: tuple[int, int] | None = None
+    hdr: bool | None = None
+    model: Any = None
+    amp: bool = True
+    progress: Callable[[str, float], None] | None = None
+    cancel: Callable[[], bool] | threading.Event | None = None
+
+    def wanted(self) -> set[str]:
+        """The validated set of layers to return; raises :class:`PhyIRError` on a bad option."""
+        want = set(OUTPUTS if self.outputs is None else self.outputs)
+        unknown = want - set(OUTPUTS)
+        if unknown:
+            raise PhyIRError(f"unknown outputs {sorted(unknown)} (choose from {', '.join(OUTPUTS)})")
+        if self.probes not in ("grid", "points", None):
+            raise PhyIRError(f"probes must be 'grid', 'points' or None, got {self.probes!r}")
+        if self.probes is None:
+            want.discard("probes")
+        if self.probes == "points" and self.points is None:
+            raise PhyIRError("probes='points' needs points=[N,3]")
+        if self.lighting_method() not in LIGHTING:
+            raise PhyIRError(f"lighting must be one of {LIGHTING}, got {self.lighting!r}")
+        return want
+
+    def lighting_method(self) -> str:
+        return self.lighting or DEFAULT_LIGHTING
+
+
+@dataclass
+class PredictReport:
+    """What one :func:`predict` call did, as values (``scene.meta`` holds the same as header strings)."""
+
+    seconds: dict[str, float] = field(default_factory=dict)  # per stage, and "total"
+    computed: list[str] = field(default_factory=list)  # layers (and "probes") the model produced
+    reused: list[str] = field(default_factory=list)  # layers taken from the input
+    lighting: str = ""  # the lighting method, when probes were computed
+    net_size: tuple[int, int] | None = None  # network resolution, when the networks ran
+    exposure_scale: float | None = None  # factor the networks' input was normalised by
+
+
+class _Clock:
+    """Stage timings, progress callbacks and cancellation checks between stages."""
+
+    def __init__(self, opts: PredictOptions, report: PredictReport):
+        self.opts, self.report = opts, report
+        self.start = self.last = time.perf_counter()
+        _check_cancel(opts.cancel)
+
+    def step(self, name: str, frac: float) -> None:
+        self.report.seconds[name] = round(time.perf_counter() - self.last, 4)
+        if self.opts.progress is not None:
+            self.opts.progress(name, frac)
+        _check_cancel(self.opts.cancel)
+        self.last = time.perf_counter()
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Which layers are wanted, given, missing, and which networks must run."""
+
+    want: set[str]
+    have: set[str]
+    have_probes: bool
+    need_probes: bool
+    missing: set[str]
+    gm_inputs: set[str]  # GMNet layers the later networks read (LNet reads all five)
+    run_gm: bool
+    lighting: str
+
+    @staticmethod
+    def of(scene: PanoScene, opts: PredictOptions, want: set[str]) -> _Plan:
+        have = {k for k in GM_LAYERS if getattr(scene, k) is not None}
+        have_probes = scene.probes is not None and opts.probes == "grid"
+        need_probes = "probes" in want and not have_probes
+        missing = {k for k in GM_LAYERS if k in want and k not in have}
+        gm_inputs = set(GM_LAYERS) if need_probes else missing
+        return _Plan(want, have, have_probes, need_probes, missing, gm_inputs, bool(gm_inputs - have),
+                     opts.lighting_method())
+
+
+@dataclass
+class _NetOut:
+    """The networks' results at their resolution, and what upsampling and lighting need."""
+
+    gm: dict[str, Tensor]
+    refined: dict[str, Tensor]
+    lnet_grid: Tensor | None
+    image: Tensor  # the input, finite and >= 0, on the device
+    xn: Tensor  # the exposure-normalised network input [1,3,Hn,Wn]
+    scale: float  # exposure normalisation factor
+    net_size: tuple[int, int]
+
+
+def _model_and_device(opts: PredictOptions) -> tuple[Any, torch.device, tuple[int, int]]:
+    if opts.model is None:
+        dev = torch.device(opts.device) if opts.device is not None else \
+            torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        model, trained = load_cached_model(opts.weights, dev)
+        return model, dev, trained
+    dev = next(opts.model.parameters()).device if opts.device is None else torch.device(opts.device)
+    return opts.model.to(dev).eval(), dev, DEFAULT_NET_SIZE
+
+
+def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOptions,
+                  clock: _Clock) -> _NetOut:
+    from phyir.color import exposure_scale
+
+    model, dev, trained = _model_and_device(opts)
+    clock.step("model", 0.1)
+    Hn, Wn = opts.net_size or net_size_for(scene.size[0], trained)
+    img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
+    x = pano.resize_area(img, Hn, Wn).to(dev)
+    s = float(exposure_scale(x)) if is_hdr else 1.0
+    xn = (x * s)[None]
+    autocast = torch.autocast("cuda", dtype=torch.float16) if opts.amp and dev.type == "cuda" \
+        else nullcontext()
+    gm: dict[str, Tensor] = {}
+    refined: dict[str, Tensor] = {}
+    lnet_grid = None
+    with torch.inference_mode(), autocast:
+        if plan.run_gm:
+            gm = {k: v.float() for k, v in model.gmnet(xn).items()}
+            clock.step("gmnet", 0.35)
+        for k in plan.have & plan.gm_inputs:  # the input's own layers, at the network's resolution
+            v = pano.resize_area(getattr(scene, k).float(), Hn, Wn).to(dev)[None]
+            gm[k] = F.normalize(v, dim=1) if k == "normal" else v
+        if plan.missing & set(model.gsnet.targets):
+            refined = {k: v.float() for k, v in model.gsnet(xn, gm).items()}
+            clock.step("gsnet", 0.45)
+        if plan.need_probes:
+            lnet_grid = model.light(xn, gm, model.default_grid(Hn, Wn))[0].float() / s
+            clock.step("lnet", 0.6)
+    return _NetOut(gm, refined, lnet_grid, img.to(dev), xn, s, (Hn, Wn))
+
+
+def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan,
+                     report: PredictReport) -> dict[str, Tensor]:
+    """Missing layers at the input's size into ``out``; returns the geometry that only projection
+    lighting needs (depth, normals that are not outputs)."""
+    H, W = scene.size
+    guide_lo = _guide(net.xn[0].float())
+    guide_hi = _guide(net.image * net.scale)
+    projection = plan.need_probes and plan.lighting == "projection"
+    geo_only = {"depth", "normal"} - plan.have - plan.want if projection else set()
+    geo: dict[str, Tensor] = {}
+    for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
+        lo = net.refined.get(k, net.gm[k])[0]
+        up = _upsample_layer(k, lo, guide_lo, guide_hi) if net.net_size != (H, W) else lo
+        if k in plan.missing:
+            setattr(out, k, up.float().cpu())
+            report.computed.append(k)
+        else:
+            geo[k] = up.float().cpu()
+    return geo
+
+
+def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
+            opts: PredictOptions) -> Tensor:
+    """The probes to return: a grid [Hp,Wp,3,h,w] or, for ``probes="points"``, [N,1,3,h,w]."""
+    assert net.lnet_grid is not None
+    lnet_grid = net.lnet_grid.cpu()
+    s = net.scale
+    if plan.lighting == "projection":
+        # in exposure-normalised units, like the networks: sums over a panorama of radiance
+        # near float32's limit would overflow
+        proj_scene = PanoScene(image=net.image.cpu() * s, depth=geo.get("depth", out.depth),
+                               normal=geo.get("normal", out.normal))
+    if opts.probes == "grid":
+        if plan.lighting != "projection":
+            return lnet_grid
+        from phyir.lighting.projection import projected_probe_grid
+
+        return projected_probe_grid(proj_scene, lnet_grid * s) / s
+    pts = opts.points.reshape(-1, 3).float().cpu()
+    fb = lnet_probes_at(lnet_grid, pts)
+    if plan.lighting == "projection":
+        from phyir.lighting.projection import project_probes
+
+        fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb * s)[0] / s
+    return fb[:, None]
+
+
+def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLike | None) -> None:
+    """The report as the scene's header strings (they travel into the saved EXR)."""
+    if report.net_size is not None:
+        out.meta["exposure_scale"] = f"{report.exposure_scale:.6g}"
+        out.meta["predict.net_size"] = f"{report.net_size[0]}x{report.net_size[1]}"
+        if weights is not None:
+            out.meta["predict.weights"] = Path(weights).name
+    out.meta["predict.computed"] = " ".join(report.computed)
+    out.meta["predict.reused"] = " ".join(report.reused)
+    out.meta["predict.lighting"] = report.lighting
+    out.meta["predict.seconds"] = json.dumps(report.seconds)
+
+
+def predict(source: str | os.PathLike | Tensor | PanoScene, options: PredictOptions | None = None,
+            **kwargs) -> PanoScene:
     """Predict every missing layer of a panorama; returns an unbatched scene at the input's size, on
-    the CPU.
+    the CPU.  Options are a :class:`PredictOptions` or its fields as keywords:
 
     ``source``: a file (anything :func:`phyir.io.load_scene` reads: HDR or LDR, any 2:1 size, scene
     files with some layers), an image tensor [3,H,W] (HDR unless ``hdr=False``) or a PanoScene.
@@ -240,147 +411,45 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, *, weights: str | os
     input's).  ``progress(stage, fraction)`` is called between stages; ``cancel`` (a callable or an
     Event) is checked between stages and raises :class:`Cancelled`.
     """
-    t_start = time.perf_counter()
-    times: dict[str, float] = {}
+    return predict_with_report(source, options, **kwargs)[0]
 
-    def step(name: str, t0: float, frac: float) -> float:
-        times[name] = round(time.perf_counter() - t0, 4)
-        if progress is not None:
-            progress(name, frac)
-        _check_cancel(cancel)
-        return time.perf_counter()
 
-    _check_cancel(cancel)
-    t = time.perf_counter()
-    if isinstance(source, (str, os.PathLike)):
-        _check_predict_size(source, *_header_size(source))  # before decoding a huge file
-    scene, is_hdr = load_input(source, hdr)
-    _check_predict_size(None, *scene.size)
-    want = set(OUTPUTS if outputs is None else outputs)
-    unknown = want - set(OUTPUTS)
-    if unknown:
-        raise PhyIRError(f"unknown outputs {sorted(unknown)} (choose from {', '.join(OUTPUTS)})")
-    if probes not in ("grid", "points", None):
-        raise PhyIRError(f"probes must be 'grid', 'points' or None, got {probes!r}")
-    if probes is None:
-        want.discard("probes")
-    if probes == "points" and points is None:
-        raise PhyIRError("probes='points' needs points=[N,3]")
-    lighting = lighting or DEFAULT_LIGHTING
-    if lighting not in LIGHTING:
-        raise PhyIRError(f"lighting must be one of {LIGHTING}, got {lighting!r}")
-    t = step("load", t, 0.05)
-
-    H, W = scene.size
-    have = {k for k in GM_LAYERS if getattr(scene, k) is not None}
-    have_probes = scene.probes is not None and probes == "grid"
-    need_probes = "probes" in want and not have_probes
-    missing = {k for k in GM_LAYERS if k in want and k not in have}
-    # LNet reads all five GMNet layers (taken from the input where it has them)
-    gm_inputs = set(GM_LAYERS) if need_probes else missing
-    run_gm = bool(gm_inputs - have)
-    computed: list[str] = []
-
+def predict_with_report(source: str | os.PathLike | Tensor | PanoScene, options: PredictOptions | None = None,
+                        **kwargs) -> tuple[PanoScene, PredictReport]:
+    """:func:`predict` and its :class:`PredictReport` (stage times, computed and reused layers)."""
+    opts = replace(options or PredictOptions(), **kwargs)
+    report = PredictReport()
+    clock = _Clock(opts, report)
+    scene, is_hdr = load_input(source, opts.hdr, limit=check_predict_size)  # checked before decoding
+    check_predict_size(None, *scene.size)
+    plan = _Plan.of(scene, opts, opts.wanted())
+    clock.step("load", 0.05)
     out = scene.map(lambda x: x)  # shallow copy
     out.meta = dict(scene.meta)
-    lnet_grid = None
-    if run_gm or need_probes:
-        if model is None:
-            dev = torch.device(device) if device is not None else \
-                torch.device("cuda" if torch.cuda.is_available() else "cpu")
-            model, trained = load_cached_model(weights, dev)
-        else:
-            dev = next(model.parameters()).device if device is None else torch.device(device)
-            model = model.to(dev).eval()
-            trained = DEFAULT_NET_SIZE
-        t = step("model", t, 0.1)
-        Hn, Wn = net_size or net_size_for(H, trained)
-        from phyir.learn.datasets import exposure_scale
-
-        img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
-        x = pano.resize_area(img, Hn, Wn).to(dev)
-        s = float(exposure_scale(x)) if is_hdr else 1.0
-        xn = (x * s)[None]
-        use_amp = amp and dev.type == "cuda"
-        autocast = torch.autocast("cuda", dtype=torch.float16) if use_amp else nullcontext()
-        gm: dict[str, Tensor] = {}
-        with torch.inference_mode(), autocast:
-            if run_gm:
-                raw = model.gmnet(xn)
-                gm = {k: v.float() for k, v in raw.items()}
-                t = step("gmnet", t, 0.35)
-            for k in have & gm_inputs:  # the input's own layers, at the network's resolution
-                v = pano.resize_area(getattr(scene, k).float(), Hn, Wn).to(dev)[None]
-                gm[k] = F.normalize(v, dim=1) if k == "normal" else v
-            refined: dict[str, Tensor] = {}
-            if missing & set(model.gsnet.targets):
-                refined = {k: v.float() for k, v in model.gsnet(xn, gm).items()}
-                t = step("gsnet", t, 0.45)
-            if need_probes:
-                grid = model.default_grid(Hn, Wn)
-                lnet_grid = model.light(xn, gm, grid)[0].float() / s
-                t = step("lnet", t, 0.6)
-        guide_lo = _guide(xn[0].float())
-        guide_hi = _guide(img.to(dev) * s)
-        # projection needs depth (and uses normals) even when they are not outputs
-        geo_only = {"depth", "normal"} - have - want if (need_probes and lighting == "projection") else set()
-        geo: dict[str, Tensor] = {}
-        for k in sorted(missing | geo_only, key=GM_LAYERS.index):
-            lo = refined.get(k, gm[k])[0]
-            up = _upsample_layer(k, lo, guide_lo, guide_hi) if (Hn, Wn) != (H, W) else lo
-            if k in missing:
-                setattr(out, k, up.float().cpu())
-                computed.append(k)
-            else:
-                geo[k] = up.float().cpu()
-        t = step("upsample", t, 0.7)
-        out.meta["exposure_scale"] = f"{s:.6g}"
-        out.meta["predict.net_size"] = f"{Hn}x{Wn}"
-        if weights is not None:
-            out.meta["predict.weights"] = Path(weights).name
-    # keep only what was asked for or given
-    for k in GM_LAYERS:
-        if k not in want and k not in have:
+    if plan.run_gm or plan.need_probes:
+        net = _run_networks(scene, is_hdr, plan, opts, clock)
+        geo = _upsample_layers(scene, out, net, plan, report)
+        clock.step("upsample", 0.7)
+        report.net_size, report.exposure_scale = net.net_size, net.scale
+    for k in GM_LAYERS:  # keep only what was asked for or given
+        if k not in plan.want and k not in plan.have:
             setattr(out, k, None)
-
-    if need_probes:
-        assert lnet_grid is not None
-        lnet_grid = lnet_grid.cpu()
-        if lighting == "projection":
-            # in exposure-normalised units, like the networks: sums over a panorama of radiance
-            # near float32's limit would overflow
-            proj_scene = PanoScene(image=img * s, depth=geo.get("depth", out.depth),
-                                   normal=geo.get("normal", out.normal))
-        if probes == "grid":
-            if lighting == "projection":
-                from phyir.lighting.projection import projected_probe_grid
-
-                out.probes = projected_probe_grid(proj_scene, lnet_grid * s) / s
-            else:
-                out.probes = lnet_grid
-        else:
-            pts = points.reshape(-1, 3).float().cpu()
-            fb = lnet_probes_at(lnet_grid, pts)
-            if lighting == "projection":
-                from phyir.lighting.projection import project_probes
-
-                fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb * s)[0] / s
-            out.probes = fb[:, None]
+    if plan.need_probes:
+        out.probes = _probes(out, net, geo, plan, opts)
+        if opts.probes == "points":
             out.meta["probe_layout"] = "points"
-        computed.append("probes")
-        t = step("probes", t, 0.95)
-    elif not have_probes:
+        report.computed.append("probes")
+        clock.step("probes", 0.95)
+    elif not plan.have_probes:
         out.probes = None
-
-    times["total"] = round(time.perf_counter() - t_start, 4)
-    out.meta["predict.computed"] = " ".join(computed)
-    out.meta["predict.reused"] = " ".join(k for k in (*GM_LAYERS, "probes")
-                                          if (k in have or (k == "probes" and have_probes)))
-    out.meta["predict.lighting"] = lighting if "probes" in computed else ""
-    out.meta["predict.seconds"] = json.dumps(times)
-    if progress is not None:
-        progress("done", 1.0)
-    return out
+    report.seconds["total"] = round(time.perf_counter() - clock.start, 4)
+    report.reused = [k for k in (*GM_LAYERS, "probes")
+                     if k in plan.have or (k == "probes" and plan.have_probes)]
+    report.lighting = plan.lighting if "probes" in report.computed else ""
+    _write_meta(out, report, opts.weights)
+    if opts.progress is not None:
+        opts.progress("done", 1.0)
+    return out, report
 
 
 def predict_many(sources: Sequence[str | os.PathLike], **kwargs) -> list[PanoScene]:

@@ -106,8 +106,10 @@ def normals_from_depth(depth: Tensor) -> Tensor:
     """
     p = depth_to_points(depth)
     H = p.shape[-2]
-    col = lambda k: torch.roll(p, -k, dims=-1)  # noqa: E731  p at column j + k (wraps)
-    row = lambda k: p[..., (torch.arange(H, device=p.device) + k).clamp(0, H - 1), :]  # noqa: E731
+    def col(k):  # p at column j + k (wraps)
+        return torch.roll(p, -k, dims=-1)
+    def row(k):
+        return p[..., (torch.arange(H, device=p.device) + k).clamp(0, H - 1), :]
     du = _straighter_side(col(1) - p, col(2) - col(1), p - col(-1), col(-1) - col(-2))
     # rows: steps past a pole don't exist; each missing step outweighs any real bend
     i = torch.arange(H, device=p.device, dtype=p.dtype)[:, None]

@@ -20,15 +20,6 @@ COLUMNS = ("input", "depth", "normal", "base colour", "roughness", "metalness", 
            "probe left", "probe centre", "probe right")
 
 
-def tonemap(x: torch.Tensor, scale: float) -> np.ndarray:
-    """Linear radiance [3,H,W] -> sRGB uint8 [H,W,3] (exposure ``scale``, ACES curve)."""
-    from phyir.io.ldr import linear_to_srgb
-    from phyir.learn.datasets import aces
-
-    y = linear_to_srgb(aces(x.float() * scale).numpy())
-    return (np.clip(y, 0, 1) * 255 + 0.5).astype(np.uint8).transpose(1, 2, 0)
-
-
 def colormap(x: torch.Tensor, name: str = "turbo", lo: float | None = None,
              hi: float | None = None) -> np.ndarray:
     import matplotlib
@@ -41,22 +32,25 @@ def colormap(x: torch.Tensor, name: str = "turbo", lo: float | None = None,
 
 
 def row(scene, render_spp: int) -> list[np.ndarray]:
+    from phyir.color import exposure_scale, to_srgb8
     from phyir.io.ldr import linear_to_srgb
-    from phyir.learn.datasets import exposure_scale, resize_scene
+    from phyir.learn.datasets import resize_scene
     from phyir.pano import resize_area
     from phyir.shading.render import render_scene
 
     small = resize_scene(scene, *TILE)
     s = float(exposure_scale(small.image)) * 0.7
-    srgb = lambda t: (np.clip(linear_to_srgb(t.float().numpy()), 0, 1) * 255 + 0.5).astype(  # noqa: E731
+    def srgb(t):
+        return (np.clip(linear_to_srgb(t.float().numpy()), 0, 1) * 255 + 0.5).astype(
         np.uint8).transpose(1, 2, 0)
     normal = ((small.normal * 0.5 + 0.5).clamp(0, 1).numpy().transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8)
-    tiles = [tonemap(small.image, s), colormap(torch.log(small.depth), "turbo"), normal,
+    tiles = [to_srgb8(small.image, s), colormap(torch.log(small.depth), "turbo"), normal,
              srgb(small.albedo), colormap(small.roughness, "gray", 0, 1),
-             colormap(small.metallic, "gray", 0, 1), tonemap(render_scene(small, spp=render_spp)["image"], s)]
+             colormap(small.metallic, "gray", 0, 1),
+             to_srgb8(render_scene(small, spp=render_spp)["image"], s)]
     Hp, Wp = scene.probe_grid
     for b in (Wp // 4, Wp // 2, 3 * Wp // 4):
-        tiles.append(tonemap(resize_area(scene.probes[Hp // 2 + Hp // 4, b], *TILE), s))
+        tiles.append(to_srgb8(resize_area(scene.probes[Hp // 2 + Hp // 4, b], *TILE), s))
     return tiles
 
 

@@ -63,7 +63,8 @@ def box_room(H: int = 64, W: int = 128, grid: tuple[int, int] = (8, 16), probe_s
     lamp = (~use) & (np.abs(p[1] - ROOM_HI[1]) < 1e-6) & \
         (((p[0] - LAMP_CENTRE[0]) ** 2 + (p[2] - LAMP_CENTRE[2]) ** 2) < LAMP_RADIUS**2)
     image = np.where(lamp[None], LAMP_RADIANCE, image)
-    to_t = lambda a, c: torch.from_numpy(a.reshape(c, H, W).astype(np.float32))  # noqa: E731
+    def to_t(a, c):
+        return torch.from_numpy(a.reshape(c, H, W).astype(np.float32))
     scene = PanoScene(image=to_t(image, 3), depth=to_t(t, 1), normal=to_t(n, 3), albedo=to_t(albedo, 3),
                       roughness=torch.ones(1, H, W), metallic=torch.zeros(1, H, W))
     probes = projected_probe_grid(scene, grid=grid, probe_size=probe_size, supersample=2)

@@ -35,7 +35,8 @@ def tiny_scene(seed: int, H: int = 64, W: int = 128, grid: tuple[int, int] = (4,
     """A box (or ellipsoidal) room with smooth random materials, a light-dependent image and smooth
     probes."""
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    def r(*s):
+        return torch.rand(*s, generator=g)
     half = (2 + 2 * float(r(())), 1.3 + 0.3 * float(r(())), 2 + 2 * float(r(())))
     centre = (0.5 * (2 * float(r(())) - 1), 0.2 * (2 * float(r(())) - 1), 0.5 * (2 * float(r(())) - 1))
     depth = box_depth(H, W, half, centre) if room == "box" else ellipsoid_depth(H, W, half)

@@ -184,7 +184,8 @@ def bad_weights(folder, good) -> dict[str, tuple[object, str]]:
     data = path.read_bytes()
     state = {k: v.contiguous() for k, v in model.state_dict().items()}
     cfg = model.config.to_dict()
-    meta = lambda c: {"format": "phyir-weights-1", "phyir.config": json.dumps(c)}  # noqa: E731
+    def meta(c):
+        return {"format": "phyir-weights-1", "phyir.config": json.dumps(c)}
     files = {
         "missing": (None, "weights file not found"),
         "empty": (b"", "not a readable safetensors weights file"),
@@ -395,7 +396,8 @@ def test_predict_refuses_inputs_over_its_size_limit(tmp_path, weights, pano_file
     from phyir import inference
 
     monkeypatch.setattr(inference, "MAX_PREDICT_SIZE", (16, 32))
-    monkeypatch.setattr(io, "load_scene", lambda *a: pytest.fail("decoded despite the header's size"))
+    for decoder in (io.exr, io.rgbe, io.ldr):
+        monkeypatch.setattr(decoder, "read_pixels", lambda *a, **k: pytest.fail("decoded despite the header"))
     with pytest.raises(InputError, match="32x64 is too large to predict at full resolution") as e:
         phyir.predict(pano_file, weights=weights[1])
     one_line_naming(e.value, pano_file)

@@ -60,7 +60,7 @@ def test_outcomes_refusal_and_finding(tmp_path, monkeypatch):
     assert r.kind == "refused" and str(bad) in r.text and "\n" not in r.text
     from phyir import io
 
-    def broken(path, panorama=True):
+    def broken(path, panorama=True, limit=None):
         raise KeyError("oops")
 
     monkeypatch.setattr(io, "read_raw", broken)

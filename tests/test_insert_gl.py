@@ -79,7 +79,8 @@ def test_brdf_glsl_matches_torch(ctx):
     rough[:, 0, :4] = torch.tensor([0.05, 0.1, 0.2, 0.3])
     cos[:, 0, :4] = torch.tensor([0.6, 0.5, 0.9999, 0.8])[:, None]
     metal = torch.rand(1, H, W, generator=g)
-    tex = lambda t: ctx.texture((W, H), t.shape[0], np.ascontiguousarray(  # noqa: E731
+    def tex(t):
+        return ctx.texture((W, H), t.shape[0], np.ascontiguousarray(
         t.permute(1, 2, 0).numpy(), np.float32).tobytes(), dtype="f4")
     inputs = [tex(cos), tex(torch.cat([base, rough])), tex(metal)]
     outs = [ctx.texture((W, H), 4, dtype="f4") for _ in range(2)]

@@ -9,7 +9,8 @@ import torch
 from insert_fixtures import box_room
 
 from phyir import pano
-from phyir.lighting.extract import extract_lights, luminance
+from phyir.color import luminance
+from phyir.lighting.extract import extract_lights
 from phyir.lighting.object_lighting import (
     ProbeField,
     irradiance_map,
@@ -117,7 +118,7 @@ def test_probe_field_interpolates_continuously_and_places_lights():
     # the lamp is on the ceiling: its light sits on the depth surface above the object
     lights, _ = extract_lights(a)
     placed, reach = place_lights(lights, p0, DepthSurface.from_scene(room), radius=0.2)
-    top = max(placed, key=lambda pl: float(luminance(pl.light.power)))
+    top = max(placed, key=lambda pl: float(luminance(pl.light.power, dim=0)))
     assert float(top.position[1]) == pytest.approx(1.5, abs=0.15)
 
 

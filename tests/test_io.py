@@ -21,7 +21,8 @@ H, W = 32, 64
 
 def make_scene(seed: int = 0, probes: bool = True) -> PanoScene:
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    def r(*s):
+        return torch.rand(*s, generator=g)
     depth = 1 + 3 * r(1, H, W)
     return PanoScene(
         image=10 * r(3, H, W), depth=depth, normal=normals_from_depth(depth), albedo=r(3, H, W),
@@ -108,7 +109,8 @@ def test_scene_file_layout_as_documented(tmp_path):
 def test_file_written_with_plain_openexr_loads(tmp_path):
     """A scene written by hand with the documented part/channel names, without phyir's writer."""
     rng = np.random.default_rng(4)
-    f32 = lambda *s: rng.random(s, dtype=np.float32)  # noqa: E731
+    def f32(*s):
+        return rng.random(s, dtype=np.float32)
     Hp, Wp, h, w = 2, 4, 4, 8
     img, depth, alb = 3 * f32(3, H, W), 1 + f32(H, W), f32(3, H, W)
     nrm = rng.normal(size=(3, H, W)).astype(np.float32)
@@ -259,7 +261,8 @@ def test_png_round_trip_within_quantisation(tmp_path, bits):
     io.save_panorama(t, tmp_path / "p.png", bits=bits)
     back = io.load_panorama(tmp_path / "p.png")
     q = 2**bits - 1
-    enc = lambda x: torch.from_numpy(ldr.linear_to_srgb(x.numpy()))  # noqa: E731
+    def enc(x):
+        return torch.from_numpy(ldr.linear_to_srgb(x.numpy()))
     assert (enc(back) - enc(t.clamp(max=1))).abs().max() <= 0.5 / q + 1e-6
     if bits == 8:
         assert np.array_equal(np.asarray(Image.open(tmp_path / "p.png")),

@@ -7,9 +7,9 @@ import pytest
 import torch
 from nets_fixtures import one_thread, tiny_scene
 
+from phyir.filters import box_sum, guided_filter
 from phyir.nets import PhyIRModel
 from phyir.nets import layers as nets_layers
-from phyir.nets.gsnet import box_sum, guided_filter
 from phyir.nets.lnet import probes_to_world
 from phyir.transforms import rotate_yaw
 
@@ -147,7 +147,7 @@ def test_guided_filter_properties():
     assert torch.allclose(guided_filter(one, one, 1e-10), one, atol=1e-5)
     # a constant guide reduces to a box filter applied twice (mean of the window means)
     flat = torch.full_like(guide, 0.5)
-    from phyir.nets.gsnet import box_mean
+    from phyir.filters import box_mean
     assert torch.allclose(guided_filter(flat, src, 1e-3), box_mean(box_mean(src, 2), 2), atol=1e-12)
     # circular in longitude: filtering commutes with rolling the columns
     a = torch.roll(guided_filter(guide, src, 1e-2), 5, dims=-1)

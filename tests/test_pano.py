@@ -157,7 +157,8 @@ def test_resize_area_preserves_constant_and_solid_angle_integral():
     x = torch.rand(2, 3, 32, 64, generator=g, dtype=torch.float64)
     for H, W in ((16, 32), (8, 16), (4, 8)):  # integer factors: the radiance integral is kept
         y = pano.resize_area(x, H, W)
-        integral = lambda t: (t * pano.solid_angles(*t.shape[-2:], dtype=t.dtype)).sum((-2, -1))  # noqa: E731
+        def integral(t):
+            return (t * pano.solid_angles(*t.shape[-2:], dtype=t.dtype)).sum((-2, -1))
         assert torch.allclose(integral(y), integral(x), rtol=1e-12)
     # non-integer factor: the integral is close
     y = pano.resize_area(x, 12, 24)

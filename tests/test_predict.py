@@ -13,6 +13,7 @@ from nets_fixtures import one_thread, tiny_scene, write_dataset
 import phyir
 from phyir import inference as I
 from phyir.cli import main as cli
+from phyir.filters import guided_upsample
 from phyir.io import load_scene, save_panorama, save_scene
 from phyir.learn.weights import save_weights
 from phyir.nets import ModelConfig, PhyIRModel
@@ -140,14 +141,14 @@ def test_guided_upsample_follows_the_guide():
     from phyir.pano import resize_area
 
     g_lo = resize_area(g_hi, 16, 32)
-    out = I.guided_upsample(3 * g_lo + 1, g_lo, g_hi, eps=1e-8)
+    out = guided_upsample(3 * g_lo + 1, g_lo, g_hi, I.GUIDE_RADIUS, eps=1e-8)
     torch.testing.assert_close(out, 3 * g_hi + 1, rtol=1e-3, atol=1e-3)
     # step edges: bilinear upsampling of the low-res src blurs them, the guided result follows the
     # guide (up to ~8 % overshoot next to edges that fall on low-res block borders)
     step = torch.zeros(1, 64, 128)
     step[..., 40:91] = 1
     lo = resize_area(step, 16, 32)
-    up = I.guided_upsample(lo, lo, step, eps=1e-6)
+    up = guided_upsample(lo, lo, step, I.GUIDE_RADIUS, eps=1e-6)
     plain = resize_area(lo, 64, 128)
     assert float((up - step).abs().max()) < 0.08 < 0.2 < float((plain - step).abs().max())
     assert float((up - step).abs().mean()) < 0.1 * float((plain - step).abs().mean())
@@ -228,8 +229,8 @@ def test_cli_eval_on_predictions_and_on_a_dataset(tmp_path, weights, capsys):
 
 
 def test_dataset_means_baseline(tmp_path):
+    from phyir.color import exposure_scale
     from phyir.evaluation import dataset_means, means_baseline
-    from phyir.learn.datasets import exposure_scale
 
     write_dataset(tmp_path, n_train=2, n_val=1, H=32, W=64, grid=(2, 4), probe_size=(4, 8))
     train = [load_scene(tmp_path / f"scene_{i:06d}.exr") for i in range(2)]

@@ -93,7 +93,8 @@ def reference_probe(x, h: int, w: int, furniture: bool, lamp: bool = False, ss: 
     r = p.norm(dim=-1)
     seen = (trace(torch.zeros_like(p), p / r[..., None], furniture) >= r - 1e-6).to(f64)
     om = pano.solid_angles(h * ss, w * ss, dtype=f64)
-    box = lambda a: F.avg_pool2d((a * om)[None], ss)[0] / F.avg_pool2d(om[None, None], ss)[0]  # noqa: E731
+    def box(a):
+        return F.avg_pool2d((a * om)[None], ss)[0] / F.avg_pool2d(om[None, None], ss)[0]
     ids = face_id(p, furniture).view(h, ss, w, ss).permute(0, 2, 1, 3).reshape(h, w, -1)
     one_face = (ids == ids[..., :1]).all(-1) & (ids[..., 0] >= 0)
     seen_t = box(seen[None])[0]
@@ -281,7 +282,8 @@ def test_synthetic_room_diffuse_walls_match_ground_truth():
     _, rough, metal = evaluate(sc.materials, sc.prim_mat[q], G.surface_at(sc.prims, q, p).uv)
     diffuse_wall = (pid >= 0) & (q < sc.prims.q_c.shape[0]) & (sc.lights.prim_light[q] < 0) \
         & (metal.reshape(-1) < 0.01) & (rough.reshape(-1) > 0.6)
-    sub = lambda a: a.view(len(x), 8, ss, 16, ss).permute(0, 1, 3, 2, 4).reshape(len(x), 8, 16, -1)  # noqa: E731
+    def sub(a):
+        return a.view(len(x), 8, ss, 16, ss).permute(0, 1, 3, 2, 4).reshape(len(x), 8, 16, -1)
     clean = sub(seen & diffuse_wall).all(-1) & (sub(pid) == sub(pid)[..., :1]).all(-1)
     # the generator splats small sources (lamps, the sun through windows) bilinearly over the four
     # texels around their direction, as the rendering layer reads them: keep clear of those texels

@@ -12,7 +12,7 @@ import torch
 from phyir import pano
 from phyir.errors import InputError
 from phyir.scene import PanoScene, SceneError
-from phyir.shading import brdf, render
+from phyir.shading import brdf, env_sampling, probe_mixture, render, split_sum
 
 
 def _smooth_env(h: int = 32, w: int = 64) -> torch.Tensor:
@@ -129,7 +129,7 @@ def test_prefiltered_lobe_shaped_lookup_beats_the_mirror_lookup(M, monkeypatch):
         return float((((s[:, 0].T.double() - ref) ** 2).sum() / (ref**2).sum()).sqrt())
 
     shaped = err()
-    monkeypatch.setattr(render, "_lobe_shape", _mirror_lookup)
+    monkeypatch.setattr(split_sum, "lobe_shape", _mirror_lookup)
     mirror = err()
     assert shaped < 0.025 and mirror > 2 * shaped, (shaped, mirror)
 
@@ -259,12 +259,13 @@ def test_probe_gradient_is_exact(method, monkeypatch):
     # environment strategy draws its samples from the probes, so its tables are frozen at the first
     # call's probes (the gradient treats samples and pdfs as constants, as it should)
     frozen: dict = {}
-    build = render._env_sampler
-    monkeypatch.setattr(render, "_env_sampler", lambda p: frozen.setdefault("tables", build(p)))
+    build = env_sampling.env_sampler
+    monkeypatch.setattr(env_sampling, "env_sampler", lambda p: frozen.setdefault("tables", build(p)))
     sc = _scene().to(dtype=torch.float64)
     probes = sc.probes.clone().requires_grad_(True)
     wgt = torch.rand(3, 8, 16, dtype=torch.float64)
-    f = lambda p: (render.render_scene(sc.replace(probes=p), spp=4, method=method)["image"] * wgt).sum()  # noqa: E731
+    def f(p):
+        return (render.render_scene(sc.replace(probes=p), spp=4, method=method)["image"] * wgt).sum()
     f(probes).backward()
     delta = torch.zeros_like(probes)
     delta[1, 2, 0, 5, 7] = 1.0
@@ -276,7 +277,8 @@ def test_probe_gradient_is_exact(method, monkeypatch):
 def test_prefiltered_normal_gradient_matches_finite_differences():
     sc = _scene().to(dtype=torch.float64)
     n = sc.normal.clone().requires_grad_(True)
-    f = lambda nn: render.render_scene(sc.replace(normal=nn), method="prefiltered")["image"].sum()  # noqa: E731
+    def f(nn):
+        return render.render_scene(sc.replace(normal=nn), method="prefiltered")["image"].sum()
     f(n).backward()
     eps = 1e-6
     for (c, i, j) in ((0, 3, 5), (1, 6, 10), (2, 2, 2)):
@@ -468,19 +470,20 @@ def test_environment_sampling_density_matches_its_samples(size):
     g = torch.Generator().manual_seed(4)
     h, w = size
     probes = torch.rand(6, 3, h, w, generator=g, dtype=torch.float64) ** 4 * 50
-    env = render._env_sampler(probes)
+    env = env_sampling.env_sampler(probes)
     n = torch.nn.functional.normalize(torch.tensor([[0.3, 0.5, -0.8]], dtype=torch.float64), dim=-1)
     index, weight = torch.tensor([[1, 2, 4, 5]]), torch.tensor([[0.1, 0.2, 0.3, 0.4]], dtype=torch.float64)
-    tab = render._env_tables(env, n, index, weight)
+    tab = env_sampling.env_tables(env, n, index, weight)
     d, om = _grid(8 * h, 8 * w)
-    pdf = render._env_pdf(env, tab, d[None])[0, :, 0]
+    pdf = env_sampling.env_pdf(env, tab, d[None])[0, :, 0]
     assert abs(float((pdf * om).sum()) - 1) < 1e-3  # (midpoint rule across the jump at the horizon)
     assert float(pdf[d @ n[0] <= 0].abs().max()) == 0
     u = torch.rand(1, 1 << 16, 2, generator=g, dtype=torch.float64)
-    l = render._env_directions(env, tab, u)
+    l = env_sampling.env_directions(env, tab, u)
     assert float((l[0] @ n[0]).min()) >= 0  # mirrored above the horizon
-    p = render._env_pdf(env, tab, l)[0, :, 0]
-    fn = lambda x: (x @ n[0]).clamp(min=0) * (1.5 + x[:, 0])  # noqa: E731  (zero where pdf is)
+    p = env_sampling.env_pdf(env, tab, l)[0, :, 0]
+    def fn(x):  # zero where pdf is
+        return (x @ n[0]).clamp(min=0) * (1.5 + x[:, 0])
     est = float((fn(l[0]) / p).mean())
     ref = float((fn(d) * om).sum())
     assert abs(est / ref - 1) < 0.01, (est, ref)
@@ -493,14 +496,14 @@ def test_environment_sampling_follows_radiance_times_cosine():
     d = pano.directions(16, 32, dtype=torch.float64)
     src = torch.nn.functional.normalize(torch.tensor([0.4, 0.5, -0.7], dtype=torch.float64), dim=0)
     env = (0.05 + 500 * torch.exp(40 * ((d * src[:, None, None]).sum(0) - 1))).expand(1, 3, 16, 32)
-    sampler = render._env_sampler(env)
+    sampler = env_sampling.env_sampler(env)
     n = torch.nn.functional.normalize(src + torch.tensor([0.3, -0.2, 0.4], dtype=torch.float64), dim=0)[None]
     one = (torch.zeros(1, 1, dtype=torch.long), torch.ones(1, 1, dtype=torch.float64))
-    tab = render._env_tables(sampler, n, *one)
+    tab = env_sampling.env_tables(sampler, n, *one)
     u = torch.rand(1, 4096, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
-    l = render._env_directions(sampler, tab, u)
-    f = render._radiance(render._texels(env), 16, 32, *one, l)[0, :, 0] * (l[0] @ n[0])
-    ratio = f / render._env_pdf(sampler, tab, l)[0, :, 0]
+    l = env_sampling.env_directions(sampler, tab, u)
+    f = probe_mixture.radiance(probe_mixture.probe_texels(env), 16, 32, *one, l)[0, :, 0] * (l[0] @ n[0])
+    ratio = f / env_sampling.env_pdf(sampler, tab, l)[0, :, 0]
     far = (l[0] @ n[0]) > 0.3  # cells that the horizon does not cut
     ratio = ratio[far] / ratio[far].median()
     assert float(ratio.min()) > 0.7 and float(ratio.max()) < 1.3, (float(ratio.min()), float(ratio.max()))

@@ -32,7 +32,8 @@ def test_point_sets_are_seeded_and_in_unit_cube():
 
 def test_low_discrepancy_beats_iid():
     # variance over pixels (random rotations) of the estimate of a smooth 2D integral
-    f = lambda u: torch.exp(u[..., 0]) * torch.cos(3 * u[..., 1])  # noqa: E731
+    def f(u):
+        return torch.exp(u[..., 0]) * torch.cos(3 * u[..., 1])
     exact = (math.e - 1) * math.sin(3) / 3
     var = {}
     for kind in S.POINT_SETS:

@@ -15,22 +15,19 @@ from nets_fixtures import one_thread, tiny_scene, tiny_scenes
 
 import phyir
 from phyir import pano
-from phyir.inference import guided_upsample
+from phyir.color import KEY, SCALE_RANGE, exposure_scale, luminance
+from phyir.filters import guided_filter, guided_upsample
+from phyir.inference import GUIDE_EPS, GUIDE_RADIUS
 from phyir.learn import losses
 from phyir.learn.datasets import (
-    KEY,
-    SCALE_RANGE,
     Augment,
     _read_cached,
     _write_cached,
     augment_scene,
-    exposure_scale,
     hdr_to_ldr_linear,
-    luminance,
     normalize_scene,
 )
 from phyir.nets import ModelConfig, PhyIRModel
-from phyir.nets.gsnet import guided_filter
 from phyir.scene import PanoScene
 from phyir.shading import prefilter, render
 
@@ -324,7 +321,7 @@ def test_guided_filters_finite_on_flat_huge_and_tiny_inputs():
                 assert all(finite(t) for t in torch.autograd.grad(out.sum(), (gg, ss)))
     lo = torch.log1p(torch.tensor([0.0, 1e6]).repeat(8, 8)[None].reshape(1, 8, 16))
     hi = torch.log1p(torch.tensor([0.0, 1e6]).repeat(16, 16)[None].reshape(1, 16, 32))
-    up = guided_upsample(torch.rand(3, 8, 16, generator=g), lo, hi)
+    up = guided_upsample(torch.rand(3, 8, 16, generator=g), lo, hi, GUIDE_RADIUS, GUIDE_EPS)
     assert finite(up) and up.shape == (3, 16, 32)
 
 

@@ -54,7 +54,8 @@ def test_rect_sampling_covers_the_solid_angle_uniformly():
     for x0 in ([0.0, 1.0, 0.0], [2.0, 2.3, 1.0], [0.5, 2.2, -0.2]):
         x = torch.tensor([x0]).expand(N, 3)
         u = torch.rand(N, 2, generator=g)
-        E = lambda t: t.expand(N, t.shape[1])  # noqa: E731
+        def E(t):
+            return t.expand(N, t.shape[1])
         w, dist, pdf = _rect_sample(x, E(c), E(ex), E(ey), E(n), E(h), u[:, 0], u[:, 1])
         y = c + ex * ((2 * u[:, :1] - 1) * h[:, :1]) + ey * ((2 * u[:, 1:] - 1) * h[:, 1:])
         wa, _, pa = _area_pdf(x, y, E(n), 4 * h.prod(), one_sided=True)
@@ -65,7 +66,8 @@ def test_rect_sampling_covers_the_solid_angle_uniformly():
         p = x + w * dist[:, None]
         assert float(((p - c) @ n[0]).abs().max()) < 1e-4
         assert float(((p - c) @ ex[0]).abs().max()) < 0.6 + 1e-4
-        f = lambda v: v[:, 0] ** 2 + (v[:, 1] > 0.9).float()  # noqa: E731
+        def f(v):
+            return v[:, 0] ** 2 + (v[:, 1] > 0.9).float()
         assert float((f(w) / pdf).mean()) == pytest.approx(float((f(wa) * inv_pa).mean()), rel=0.03)
 
 
@@ -90,7 +92,8 @@ def test_cosine_warp_of_quads_is_unbiased_and_cuts_variance():
     c, ex, ey = torch.tensor([[2.0, 1.6, 0.0]]), torch.tensor([[0, 0, 1.0]]), torch.tensor([[0, 1.0, 0]])
     n = torch.linalg.cross(ex, ey)  # (-1,0,0): a window in the wall x = 2 facing the room
     h = torch.tensor([[0.7, 0.6]])
-    E = lambda t: t.expand(N, t.shape[1])  # noqa: E731
+    def E(t):
+        return t.expand(N, t.shape[1])
     corners = [c[0] + sx * h[0, 0] * ex[0] + sy * h[0, 1] * ey[0]
                for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
     up = torch.tensor([0.0, 1.0, 0.0])
@@ -197,7 +200,8 @@ def test_light_samples_per_camera_sample_keep_the_image_unbiased():
 
     sc = _room_with(2022, True)
     st = tiny_settings(size=(32, 64), probe_grid=None, spp=16)
-    g = lambda s: torch.Generator().manual_seed(s)  # noqa: E731
+    def g(s):
+        return torch.Generator().manual_seed(s)
     lm = build_lightmap(sc, st, g(0))
     img = {}
     for k in (1, 4):

@@ -200,7 +200,8 @@ def test_ddp_two_processes_match_one_process(tmp_path):
     assert one.returncode == 0, one.stderr[-3000:]
     import json
 
-    curve = lambda run: [json.loads(ln)["loss"] for ln in  # noqa: E731
+    def curve(run):
+        return [json.loads(ln)["loss"] for ln in
                          (tmp_path / run / "gm" / "log.jsonl").read_text().splitlines()]
     a, b = curve("ddp"), curve("one")
     assert len(a) == len(b) == 4

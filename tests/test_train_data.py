@@ -9,17 +9,14 @@ import pytest
 import torch
 from nets_fixtures import one_thread, tiny_scene, write_dataset
 
+from phyir.color import KEY, aces, exposure_scale, luminance
 from phyir.errors import InputError
 from phyir.learn.datasets import (
-    KEY,
     Augment,
     SceneDataset,
     TensorSceneDataset,
-    aces,
     augment_scene,
-    exposure_scale,
     hdr_to_ldr_linear,
-    luminance,
     normalize_scene,
     read_manifest,
     resize_scene,

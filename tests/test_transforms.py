@@ -34,7 +34,8 @@ def ellipsoid_depth(H: int, W: int) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def scene() -> PanoScene:
     g = torch.Generator().manual_seed(0)
-    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    def r(*s):
+        return torch.rand(*s, generator=g)
     depth = ellipsoid_depth(H, W)
     return PanoScene(image=r(3, H, W), depth=depth, normal=normals_from_depth(depth), albedo=r(3, H, W),
                      roughness=r(1, H, W), metallic=r(1, H, W), probes=r(Hp, Wp, 3, h, w),

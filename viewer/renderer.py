@@ -3,7 +3,7 @@
 1. layer pass   -> ``hdr``: the layer's linear values resampled into view pixels (RGBA32F, alpha =
    panorama coverage, with a depth buffer);
 2. linear passes (``Renderer.linear_passes``): hooks drawing onto ``hdr`` in linear values with the
-   same camera, e.g. inserted objects (issue 8);
+   same camera;
 3. display pass -> target: exposure/offset and tone map, or colour map for scalar layers;
 4. overlay passes (``Renderer.overlay_passes``): probe markers and the like, in display colours.
 
@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
-from viewer import glsl
-from viewer.view import EquirectView, PerspectiveView, View
+from phyir.insert.views import EquirectView, PerspectiveView, View
+from viewer.gl.programs import ProgramCache, set_uniform, set_view
 
 KINDS = {"hdr": 0, "colour": 1, "normal": 2, "scalar": 3}
 TONEMAPS = ("srgb", "aces", "false")
@@ -81,7 +81,7 @@ def colormap_lut(name: str, n: int = 256) -> np.ndarray:
 class Renderer:
     def __init__(self, ctx: moderngl.Context):
         self.ctx = ctx
-        self._programs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self.programs = ProgramCache(ctx)
         self._cache: moderngl.Framebuffer | None = None  # the last view drawn with a cache key
         self._cache_key: tuple | None = None
         self.cache_misses = 0
@@ -114,11 +114,8 @@ class Renderer:
 
     def program(self, frag: str, **defines: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
         """A full-screen program of ``frag`` compiled with ``defines`` (cached), and its VAO."""
-        key = (frag, *sorted(defines.items()))
-        if key not in self._programs:
-            prog = glsl.program(self.ctx, "fullscreen.vert", frag, defines)
-            self._programs[key] = prog, self.ctx.vertex_array(prog, [])
-        return self._programs[key]
+        prog = self.programs.program("fullscreen.vert", frag, **defines)
+        return prog, self.programs.fullscreen(prog)
 
     def warm_up(self, target: moderngl.Framebuffer | None = None) -> None:
         """Load the colour maps (imports matplotlib) and draw every shader variant a file can need
@@ -164,9 +161,10 @@ class Renderer:
         for obj in made:
             obj.release()
 
-    def _note(self, shader: str, defines: dict[str, int], textures: Sequence[moderngl.Texture],
-              target: moderngl.Framebuffer) -> None:
-        """Record the shader variant a draw uses (``variants``; ``first_draws`` in order)."""
+    def note_variant(self, shader: str, defines: dict[str, int], textures: Sequence[moderngl.Texture],
+                     target: moderngl.Framebuffer) -> None:
+        """Record the shader variant a draw uses (``variants``; ``first_draws`` in order); passes
+        call it for their own draws."""
         key = ((shader, *sorted(defines.items())), tuple(map(texture_class, textures)),
                framebuffer_class(target))
         if key not in self.variants:
@@ -229,7 +227,7 @@ class Renderer:
         fb_h = (fb_size or target.size)[1]
         frame.rect = (x, y, w, h)
         prog, vao = self.program("blit.frag")
-        self._note("blit.frag", {}, (cache.color_attachments[0],), target)
+        self.note_variant("blit.frag", {}, (cache.color_attachments[0],), target)
         target.use()
         self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         self.ctx.viewport = (x, fb_h - y - h, w, h)
@@ -258,63 +256,53 @@ class Renderer:
             hdr.use()
             hdr.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             prog, vao = self.program("layer.frag", **view_defs)
-            self._note("layer.frag", view_defs, (frame.texture,), hdr)
+            self.note_variant("layer.frag", view_defs, (frame.texture,), hdr)
             self._set_layer(prog, frame, (0, 0, w, h), h)
             vao.render(moderngl.TRIANGLES, vertices=3)
             for p in self.linear_passes:
                 p(self, frame)
             ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
             prog, vao = self.program("display.frag", **disp_defs)
-            self._note("display.frag", disp_defs, (hdr.color_attachments[0], self._cmap(d)), target)
+            self.note_variant("display.frag", disp_defs, (hdr.color_attachments[0], self._cmap(d)), target)
             target.use()
             ctx.viewport = (x, fb_h - y - h, w, h)
             hdr.color_attachments[0].use(0)
-            _uniform(prog, "hdr", 0)
-            _uniform(prog, "hdr_origin", (float(x), float(fb_h - y - h)))
+            set_uniform(prog, "hdr", 0)
+            set_uniform(prog, "hdr_origin", (float(x), float(fb_h - y - h)))
         else:
             prog, vao = self.program("view.frag", **view_defs, **disp_defs)
-            self._note("view.frag", {**view_defs, **disp_defs}, (frame.texture, self._cmap(d)), target)
+            self.note_variant("view.frag", {**view_defs, **disp_defs}, (frame.texture, self._cmap(d)), target)
             target.use()
             ctx.viewport = (x, fb_h - y - h, w, h)
             self._set_layer(prog, frame, (x, y, w, h), fb_h)
-        self._set_display(prog, frame)
+        self.set_display(prog, frame)
         vao.render(moderngl.TRIANGLES, vertices=3)
         for p in self.overlay_passes:
             p(self, frame)
 
     def _set_layer(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
-        self._set_view(prog, frame, rect, fb_height)
+        set_view(prog, frame.view, rect, fb_height)
         frame.texture.use(0)
-        _uniform(prog, "layer", 0)
+        set_uniform(prog, "layer", 0)
         H, W = frame.pano_size
-        _uniform(prog, "pano_size", (float(W), float(H)))
+        set_uniform(prog, "pano_size", (float(W), float(H)))
 
-    def _set_display(self, prog: moderngl.Program, frame: Frame) -> None:
+    def set_display(self, prog: moderngl.Program, frame: Frame) -> None:
+        """The uniforms of ``shaders/display.glsl``: exposure, offset and range of ``frame.display``,
+        its colour map on unit 1 and the background (passes that redo the display transform use it)."""
         d = frame.display
-        _uniform(prog, "exposure", float(d.exposure))
-        _uniform(prog, "offset", float(d.offset))
+        set_uniform(prog, "exposure", float(d.exposure))
+        set_uniform(prog, "offset", float(d.offset))
         false = d.kind == "hdr" and d.tonemap == "false"
         lo, hi = d.false_range if false else d.range
-        _uniform(prog, "range", (float(lo), float(hi) if hi != lo else float(lo) + 1e-6))
+        set_uniform(prog, "range", (float(lo), float(hi) if hi != lo else float(lo) + 1e-6))
         self._cmap(d).use(1)
-        _uniform(prog, "cmap", 1)
-        _uniform(prog, "background", tuple(float(c) for c in frame.background))
+        set_uniform(prog, "cmap", 1)
+        set_uniform(prog, "background", tuple(float(c) for c in frame.background))
 
     def _cmap(self, d: Display) -> moderngl.Texture:
         """The colour map a display samples (the false-colour one for false-colour HDR)."""
         return self.lut(FALSE_COLOUR_MAP if d.kind == "hdr" and d.tonemap == "false" else d.colormap)
-
-    def _set_view(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
-        v = frame.view
-        _uniform(prog, "view_rect", tuple(float(r) for r in rect))
-        _uniform(prog, "fb_height", float(fb_height))
-        if isinstance(v, EquirectView):
-            _uniform(prog, "eq_center", tuple(float(c) for c in v.center))
-            _uniform(prog, "eq_zoom", float(v.zoom))
-        elif isinstance(v, PerspectiveView):
-            _uniform(prog, "persp", (float(np.radians(v.fov)), float(v.yaw), float(v.pitch)))
-        else:
-            raise TypeError(f"unknown view {v!r}")
 
     def read(self, target: moderngl.Framebuffer, rect: tuple[int, int, int, int] | None = None,
              components: int = 3) -> np.ndarray:
@@ -336,10 +324,7 @@ class Renderer:
         for t in self._luts.values():
             t.release()
         self._luts.clear()
-        for prog, vao in self._programs.values():
-            vao.release()
-            prog.release()
-        self._programs.clear()
+        self.programs.release()
 
 
 POT_CLASSES = ((4, 2), (3, 2), (4, 3), (3, 3))  # (w, h) sizes: each side a power of two or not
@@ -363,22 +348,14 @@ def framebuffer_class(fb: moderngl.Framebuffer) -> tuple:
     return colours, fb.depth_attachment is not None
 
 
-def _uniform(prog: moderngl.Program, name: str, value) -> None:
-    """Set a uniform unless the compiler dropped it from this variant."""
-    if name in prog:
-        prog[name] = value
-
-
 def draw_markers(r: Renderer, frame: Frame) -> None:
     """Rings around the pinned probes (overlay pass): one instanced quad per marker."""
     ms = list(frame.markers)[:MAX_MARKERS]
     if not ms:
         return
-    if "markers" not in r._programs:
-        prog = glsl.program(r.ctx, "markers.vert", "markers.frag")
-        r._programs["markers"] = prog, r.ctx.vertex_array(prog, [])
-    prog, vao = r._programs["markers"]
-    r._note("markers", {}, (), r.ctx.fbo)
+    prog = r.programs.program("markers.vert", "markers.frag")
+    vao = r.programs.fullscreen(prog)
+    r.note_variant("markers", {}, (), r.ctx.fbo)
     pos = np.zeros((MAX_MARKERS, 2), np.float32)
     col = np.zeros((MAX_MARKERS, 3), np.float32)
     for k, m in enumerate(ms):

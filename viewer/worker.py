@@ -1,7 +1,9 @@
 """Loading, inference and re-rendering off the GL thread.
 
 One job at a time runs in a daemon thread: load the file -> run the model for the layers the file
-lacks -> re-render.  Each step posts an :class:`Update` to a queue that the GL thread drains every
+lacks -> re-render.  Each step posts an event (a small frozen dataclass: :class:`Loaded`,
+:class:`Progress`, :class:`GroundTruth`, :class:`LayersReady`, :class:`Rendered`, :class:`Note`,
+:class:`Failed`, :class:`Done`) to a queue that the GL thread drains every
 frame (``Worker.poll``); ``wake`` (e.g. ``glfw.post_empty_event``) is called after each post so an
 idle window wakes up.  Starting a job cancels the running one: its ``cancel`` event is set (the model
 polls it) and its later updates are dropped.  torch runs with few threads so the UI thread keeps a
@@ -11,6 +13,7 @@ core; the thread count is restored when the job ends.
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib.util
 import os
 
@@ -26,25 +29,20 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from phyir.errors import PhyIRError
+from phyir.inference import Cancelled
 from phyir.scene import PanoScene
 from viewer.layers import PREDICTED, auto_ranges, rendered_arrays, scene_arrays
 
 
-@dataclass
-class Update:
-    job: int
-    kind: str       # loaded | progress | layers | gt | rendered | gt-rendered | note | error | done
-    payload: Any = None
-
-
-@dataclass
+@dataclass(frozen=True)
 class Loaded:
+    """The file is read: its scene and layer arrays."""
+
     scene: PanoScene
     arrays: dict[str, np.ndarray]
     name: str
@@ -53,14 +51,69 @@ class Loaded:
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)  # scalar layers' default ranges
 
 
+@dataclass(frozen=True)
+class Progress:
+    """How far the job is: a fraction (None: unknown) and/or a message (None: unchanged)."""
+
+    fraction: float | None
+    text: str | None
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """Compare mode: the file's scene and layers are the ground truth; the model predicts all layers."""
+
+    scene: PanoScene
+    arrays: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class LayersReady:
+    """The model's layers: the scene with them, their arrays, automatic ranges and the model's time."""
+
+    scene: PanoScene
+    arrays: dict[str, np.ndarray]
+    ranges: dict[str, tuple[float, float]]
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """Re-rendered layers (diffuse, specular, re-render, error) of the prediction or, with ``gt``,
+    of the ground truth."""
+
+    arrays: dict[str, np.ndarray]
+    seconds: float
+    gt: bool = False
+
+
+@dataclass(frozen=True)
+class Note:
+    """Something to tell the user."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The job stopped with an error at ``stage`` (loading, running the model, re-rendering)."""
+
+    stage: str
+    text: str
+
+
+@dataclass(frozen=True)
+class Done:
+    """The job finished."""
+
+
+Event = Loaded | Progress | GroundTruth | LayersReady | Rendered | Note | Failed | Done
+
+
 # niceness of the worker thread: the UI thread, llvmpipe's threads and the X server come first (with
 # 5 the longest frame while loading under Xvfb was 79-154 ms, with 15 46-77 ms; job time the same)
 WORKER_NICE = 15
 SYNTH_SOURCE = "phyir synth"  # meta["source"] of phyir.synth's scenes: their layers are ground truth
-
-
-class Cancelled(Exception):
-    """Raised inside a job when it has been superseded."""
 
 
 def default_threads() -> int:
@@ -72,12 +125,12 @@ class Worker:
     def __init__(self, wake: Callable[[], None] | None = None, predict: Callable | None = None,
                  render: Callable | None = None, threads: int | None = None,
                  predict_kwargs: dict | None = None):
-        self._wake = wake or (lambda: None)
+        self._wake = wake or _no_wake
         self._predict = predict
         self.predict_kwargs = dict(predict_kwargs or {})  # e.g. weights=..., device=...
         self._render = render
         self.threads = threads or default_threads()
-        self._queue: queue.Queue[Update] = queue.Queue()
+        self._queue: queue.Queue[tuple[int, Event]] = queue.Queue()
         self._job = 0
         self._cancel = threading.Event()
         self._thread: threading.Thread | None = None
@@ -118,16 +171,20 @@ class Worker:
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive() and not self._cancel.is_set()
 
-    def poll(self) -> list[Update]:
-        """Updates of the current job posted since the last poll (stale jobs' updates dropped)."""
+    def set_wake(self, wake: Callable[[], None] | None) -> None:
+        """What the worker calls after each post (None: nothing, e.g. once the window is closing)."""
+        self._wake = wake or _no_wake
+
+    def poll(self) -> list[Event]:
+        """Events of the current job posted since the last poll (stale jobs' events dropped)."""
         out = []
         while True:
             try:
-                u = self._queue.get_nowait()
+                job, event = self._queue.get_nowait()
             except queue.Empty:
                 return out
-            if u.job == self._job:
-                out.append(u)
+            if job == self._job:
+                out.append(event)
 
     def join(self, timeout: float | None = None) -> None:
         """Wait for every job thread (cancelled ones included) up to ``timeout`` seconds in all."""
@@ -145,8 +202,8 @@ class Worker:
         return default_weights_path().exists()
 
     # -- worker-thread side --------------------------------------------------------------------
-    def _post(self, job: int, kind: str, payload: Any = None) -> None:
-        self._queue.put(Update(job, kind, payload))
+    def _post(self, job: int, event: Event) -> None:
+        self._queue.put((job, event))
         self._wake()
 
     def _run(self, job: int, cancel: threading.Event, source, name, compare: bool | None,
@@ -154,14 +211,14 @@ class Worker:
         old_threads = torch.get_num_threads()
         torch.set_num_threads(self.threads)
         _lower_priority()
-        post = lambda kind, payload=None: self._post(job, kind, payload)  # noqa: E731
+        post = functools.partial(self._post, job)
         stage = ["loading"]
         try:
             loaded = load(source, name)
-            post("loaded", loaded)
+            post(loaded)
             self._check(cancel)
             scene = loaded.scene
-            predict = (self._predict or _library_predict()) if run_model else None
+            predict = (self._predict or _library_predict) if run_model else None
             missing = [n for n in PREDICTED if getattr(scene, n) is None]
             if compare is None:  # synthetic ground truth: predict everything and compare
                 compare = (predict is not None and not missing and self._weights_available()
@@ -169,54 +226,52 @@ class Worker:
             if compare:
                 gt, missing = scene, list(PREDICTED)
                 scene = PanoScene(image=scene.image, meta=dict(scene.meta))
-                post("gt", (gt, loaded.arrays))
-                self._rerender(post, cancel, stage, "gt-rendered", gt)
+                post(GroundTruth(gt, loaded.arrays))
+                self._rerender(post, cancel, stage, scene=gt, gt=True)
             if missing and run_model:
-                if predict is None:
-                    post("note", "no model available (phyir.predict is missing): showing the file's layers")
-                else:
-                    stage[0] = "running the model"
-                    post("progress", (0.0, f"running the model for {', '.join(missing)}"))
-                    t0 = time.perf_counter()
-                    pred = predict(scene, outputs=tuple(missing), progress=_progress(post, cancel),
-                                   cancel=cancel, **self.predict_kwargs)
-                    self._check(cancel)
-                    pred = pred[0] if pred.batched else pred
-                    scene = scene.replace(**{n: getattr(pred, n).detach().cpu().float() for n in missing
-                                             if getattr(pred, n) is not None})
-                    arrays = scene_arrays(scene, missing)
-                    post("layers", (scene, arrays, auto_ranges(arrays), time.perf_counter() - t0))
-            self._rerender(post, cancel, stage, "rendered", scene)
-            post("done")
+                stage[0] = "running the model"
+                post(Progress(0.0, f"running the model for {', '.join(missing)}"))
+                t0 = time.perf_counter()
+                pred = predict(scene, outputs=tuple(missing), progress=_progress(post, cancel),
+                               cancel=cancel, **self.predict_kwargs)
+                self._check(cancel)
+                pred = pred[0] if pred.batched else pred
+                scene = scene.replace(**{n: getattr(pred, n).detach().cpu().float() for n in missing
+                                         if getattr(pred, n) is not None})
+                arrays = scene_arrays(scene, missing)
+                post(LayersReady(scene, arrays, auto_ranges(arrays), time.perf_counter() - t0))
+            self._rerender(post, cancel, stage, scene=scene, gt=False)
+            post(Done())
         except Cancelled:
             pass
         except PhyIRError as e:  # user-facing: the message names the file and the problem
             if not cancel.is_set():
-                post("error", (stage[0], str(e)))
+                post(Failed(stage[0], str(e)))
         except Exception as e:  # noqa: BLE001 - a failing model must not take the viewer down
             if not cancel.is_set():
                 traceback.print_exc()
-                post("error", (stage[0], f"{type(e).__name__}: {e}"))
+                post(Failed(stage[0], f"{type(e).__name__}: {e}"))
         finally:
             torch.set_num_threads(old_threads)
 
-    def _rerender(self, post, cancel: threading.Event, stage: list[str], kind: str, scene: PanoScene) -> None:
+    def _rerender(self, post, cancel: threading.Event, stage: list[str], *, scene: PanoScene,
+                  gt: bool) -> None:
         """Post the re-rendered diffuse/specular/image and the error map, when the scene allows."""
-        render = self._render or _library_render()
-        if render is None or not scene.has(*PREDICTED):
+        render = self._render or _library_render
+        if not scene.has(*PREDICTED):
             return
         stage[0] = "re-rendering"
-        post("progress", (None, "re-rendering diffuse and specular"))
+        post(Progress(None, "re-rendering diffuse and specular"))
         t0 = time.perf_counter()
         passes = render(scene)
         self._check(cancel)
         arrays = rendered_arrays(scene_arrays(scene, ("image",))["image"], passes)
-        post(kind, (arrays, time.perf_counter() - t0))
+        post(Rendered(arrays, time.perf_counter() - t0, gt))
 
     @staticmethod
     def _check(cancel: threading.Event) -> None:
         if cancel.is_set():
-            raise Cancelled
+            raise Cancelled("job superseded")
 
 
 # Modules a job imports on first use (phyir.io's readers, phyir.predict's model and weights, the
@@ -272,30 +327,25 @@ def _progress(post, cancel: threading.Event) -> Callable:
     def cb(*args, **kw):
         frac = next((float(a) for a in (*args, *kw.values()) if isinstance(a, (int, float))), None)
         text = next((a for a in (*args, *kw.values()) if isinstance(a, str)), None)
-        post("progress", (frac, text))
+        post(Progress(frac, text))
         if cancel.is_set():
-            raise Cancelled
+            raise Cancelled("job superseded")
     return cb
 
 
-def _library_predict() -> Callable | None:
-    """``phyir.predict``, or None while the library has no inference module."""
-    import phyir
-
-    try:
-        return phyir.predict
-    except AttributeError:
-        return None
-    except ModuleNotFoundError as e:  # phyir.predict is registered but its module is missing
-        if e.name and e.name.startswith("phyir"):
-            return None
-        raise
+def _no_wake() -> None:
+    """The default ``wake``: nothing to wake."""
 
 
-def _library_render() -> Callable | None:
-    if importlib.util.find_spec("phyir.shading.render") is None:
-        return None
+def _library_predict(scene: PanoScene, **kwargs) -> PanoScene:
+    """The model: :func:`phyir.predict`."""
+    from phyir import predict
+
+    return predict(scene, **kwargs)
+
+
+def _library_render(scene: PanoScene) -> dict:
+    """The re-render: split-sum shading, fast and close to the Monte Carlo render (docs/rendering.md)."""
     from phyir.shading.render import render_scene
 
-    # split-sum shading: fast and close to the Monte Carlo render (docs/rendering.md)
-    return lambda scene: render_scene(scene, method="prefiltered")
+    return render_scene(scene, method="prefiltered")

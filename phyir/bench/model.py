@@ -85,12 +85,12 @@ def eval_scenes(cfg: dict, out: Path, quick: bool, log: Callable[[str], None]) -
 def lnet_relight(pred: PanoScene, gt: PanoScene, cfg: dict) -> dict[str, float]:
     """Relighting errors of LNet's probes at ``relight`` ground-truth probe cells (module doc)."""
     from phyir import pano
-    from phyir.evaluation import _spread, lighting_metrics
+    from phyir.evaluation import lighting_metrics, spread
     from phyir.inference import lnet_probes_at
     from phyir.lighting.projection import probe_positions
 
     Hp, Wp = gt.probe_grid
-    cells = _spread(Hp * Wp, cfg["relight"])[:cfg["relight"]]
+    cells = spread(Hp * Wp, cfg["relight"])[:cfg["relight"]]
     gt_p = gt.probes.reshape(Hp * Wp, 3, *gt.probe_size)[cells]
     gt_pos = probe_positions(gt.depth, gt.normal, (Hp, Wp)).reshape(-1, 3)[cells]
     pred_pos = probe_positions(pred.depth, pred.normal, (Hp, Wp)).reshape(-1, 3)[cells]

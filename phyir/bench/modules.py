@@ -37,7 +37,7 @@ CALIBRATION_MB = 64  # a tensor of known size whose measured peak checks the mem
 def bench_image(H: int, W: int, device: str = "cpu") -> torch.Tensor:
     """A deterministic HDR panorama ``[3, H, W]``: the procedural glossy scene of
     :mod:`phyir.bench.render` rendered with the prefiltered layer (lamps up to ~10x the median)."""
-    from phyir.bench.render import bench_scene
+    from phyir.bench.render_scenes import bench_scene
     from phyir.shading.render import render_scene
 
     sc = bench_scene("glossy", H, W, block=max(1, H // 16))
@@ -45,7 +45,7 @@ def bench_image(H: int, W: int, device: str = "cpu") -> torch.Tensor:
 
 
 def _render_scene(cfg: dict, device: str):
-    from phyir.bench.render import bench_scene
+    from phyir.bench.render_scenes import bench_scene
 
     rh, rw = cfg["render_size"]
     return bench_scene("mixed", rh, rw, block=rh // 16).to(device)  # a 16x32 probe grid, as LNet's
@@ -54,7 +54,7 @@ def _render_scene(cfg: dict, device: str):
 def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], object]]:
     """Callables running each part on realistic inputs (earlier stages precomputed)."""
     import phyir
-    from phyir.bench.profile import _parts
+    from phyir.bench.profile import subnet_calls
     from phyir.nets.model import PhyIRModel
     from phyir.shading.render import render_scene
 
@@ -63,7 +63,7 @@ def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], obje
     model = PhyIRModel(size).to(device).eval()
     image = bench_image(H, W, device)
     x = image[None].contiguous(memory_format=torch.channels_last)
-    nets = _parts(model, x)
+    nets = subnet_calls(model, x)
     sc = _render_scene(cfg, device)
 
     def net(fn):

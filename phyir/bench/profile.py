@@ -26,7 +26,7 @@ from phyir.nets.model import PhyIRModel, count_parameters
 PAPER_MS = {"gmnet": 18.0, "lnet": 4.0, "gsnet": 8.0}
 
 
-def _parts(model: PhyIRModel, image: torch.Tensor):
+def subnet_calls(model: PhyIRModel, image: torch.Tensor):
     """Callables running each sub-network on realistic inputs (earlier stages precomputed)."""
     with torch.no_grad():
         gm = model.gmnet(image)
@@ -44,7 +44,7 @@ def profile(size: str, H: int = 256, W: int = 512, repeat: int = 5, device: str 
     model = PhyIRModel(size).to(device).eval()
     image = torch.rand(1, 3, H, W, device=device).contiguous(memory_format=torch.channels_last)
     rows = {}
-    for name, fn in _parts(model, image).items():
+    for name, fn in subnet_calls(model, image).items():
         with torch.no_grad():
             counter = FlopCounterMode(display=False)
             with counter:

@@ -10,6 +10,9 @@ uses.  The reference's own noise is estimated from the difference of its halves 
 quadrature (``err`` columns; ``err_raw`` keeps the plain value).  Times are the median of
 ``repeats`` runs after one warm-up, with the interquartile range; the load average is recorded
 because the machine may be shared.
+
+The scenes are :mod:`phyir.bench.render_scenes`, timing, errors and the reference
+:mod:`phyir.bench.render_measure`, summaries, tables and plots :mod:`phyir.bench.render_report`.
 """
 
 from __future__ import annotations
@@ -26,194 +29,19 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
+from phyir.bench.render_measure import (
+    PREFILTERED_F32,
+    Reference,
+    level_matmul,
+    loglog,
+    rel_rmse,
+    time_interleaved,
+)
+from phyir.bench.render_report import format_table, plot, plot_energy, spread_summary, summarize
+from phyir.bench.render_scenes import bench_scene, shaded_mask
 from phyir.scene import PanoScene
 
-SCENE_KINDS = ("glossy", "metal", "mixed")
-
-
-def _smooth_field(g: torch.Generator, c: int, H: int, W: int, cells: tuple[int, int]) -> Tensor:
-    """Smooth random field ``[c, H, W]`` in [0, 1]: bicubic upsampling of a coarse random grid."""
-    coarse = torch.rand(1, c, *cells, generator=g, dtype=torch.float64)
-    coarse = pano.circular_pad(coarse, (2, 2, 0, 0))
-    up = F.interpolate(coarse, size=(H, W + 4 * W // cells[1]), mode="bicubic", align_corners=False)
-    off = 2 * W // cells[1]
-    return up[0, :, :, off:off + W].clamp(0, 1)
-
-
-def bench_scene(kind: str = "glossy", H: int = 128, W: int = 256, block: int = 2,
-                probe_size: tuple[int, int] = (16, 32), seed: int = 0) -> PanoScene:
-    """A procedural :class:`PanoScene` of ``kind`` ("glossy", "metal" or "mixed")."""
-    if kind not in SCENE_KINDS:
-        raise ValueError(f"unknown bench scene {kind!r}; expected one of {SCENE_KINDS}")
-    g = torch.Generator().manual_seed(seed)
-    dirs = pano.directions(H, W, dtype=torch.float64)
-    depth = 1.5 + 2.0 * _smooth_field(g, 1, H, W, (4, 8))
-    # normals: facing the camera, tilted by a smooth random field, kept away from grazing
-    tilt = (_smooth_field(g, 3, H, W, (8, 16)) - 0.5) * 2.4
-    n = F.normalize(-dirs + tilt, dim=0)
-    nv = (n * -dirs).sum(0, keepdim=True)
-    n = torch.where(nv < 0.1, F.normalize(n + (0.1 - nv + 0.05) * -dirs, dim=0), n)
-    albedo = 0.15 + 0.8 * _smooth_field(g, 3, H, W, (6, 12))
-    r = _smooth_field(g, 1, H, W, (6, 12))
-    m = _smooth_field(g, 1, H, W, (6, 12))
-    masks = {}
-    if kind == "glossy":
-        rough, metal = 0.2 + 0.4 * r, torch.zeros_like(m)
-    elif kind == "metal":
-        rough, metal = 0.1 + 0.4 * r, torch.ones_like(m)
-    else:
-        rough, metal = r, (m > 0.6).double()
-        e = _smooth_field(g, 1, H, W, (6, 12))
-        masks["emission"] = (e > 0.85).float()
-        masks["invalid"] = (e < 0.08).float()
-    probes = _probes(g, dirs, depth, H // block, W // block, probe_size)
-    image = torch.zeros(3, H, W)
-    return PanoScene(image=image, depth=depth.float(), normal=n.float(), albedo=albedo.float(),
-                     roughness=rough.float(), metallic=metal.float(), probes=probes.float(),
-                     masks=masks, meta={"bench": kind})
-
-
-def _probes(g: torch.Generator, dirs: Tensor, depth: Tensor, Hp: int, Wp: int,
-            size: tuple[int, int]) -> Tensor:
-    H, W = dirs.shape[-2:]
-    # probe positions: the surface point at the centre of each block
-    centres = pano.resize_area(dirs * depth, Hp, Wp)  # [3, Hp, Wp] block-mean points
-    pos = centres.permute(1, 2, 0).reshape(-1, 1, 1, 3)  # [N, 1, 1, 3]
-    h, w = size
-    d = pano.directions(h, w, dtype=torch.float64).permute(1, 2, 0)  # [h, w, 3]
-    # ambient: sky-ish gradient, warmer below
-    up = d[..., 1:2]
-    amb = 0.25 + 0.15 * up + torch.tensor([0.05, 0.03, 0.0], dtype=torch.float64) * (1 - up)
-    out = amb.expand(pos.shape[0], h, w, 3).clone()
-    for _ in range(3):
-        src = (torch.rand(3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor([6.0, 1.5, 6.0])
-        src[1] += 1.5
-        col = 0.6 + 0.4 * torch.rand(3, generator=g, dtype=torch.float64)
-        power = 40.0 + 60.0 * float(torch.rand(1, generator=g))
-        to = src - pos  # [N,1,1,3]
-        dist = to.norm(dim=-1, keepdim=True).clamp(min=0.3)
-        c = (to / dist * d).sum(-1, keepdim=True)
-        kappa = (dist / 0.25) ** 2  # ~ source radius 0.25 m
-        out += power / dist**2 * col * torch.exp(kappa * (c - 1))
-    return out.reshape(Hp, Wp, h, w, 3).permute(0, 1, 4, 2, 3).contiguous()
-
-
-# ---------------------------------------------------------------------------------------------
-# measuring
-
 PAPER_MS = 109.0  # rendering layer, 128x256, V100 (supplement Table 1)
-PREFILTERED_F32 = "prefiltered_f32"  # the prefiltered path with float32 level maps (bench row)
-
-
-def level_matmul(probes: Tensor) -> str:
-    """The dtype the prefiltered path's level matmul takes for ``probes [..., 3, h, w]`` when every
-    level is needed (:func:`phyir.shading.prefilter.level_matmul_dtype`), as a name."""
-    from phyir.shading import prefilter
-
-    rows = prefilter.map_rows(*probes.shape[-2:])
-    return str(prefilter.level_matmul_dtype(probes, rows * probes.numel())).removeprefix("torch.")
-
-
-def _sync(device: str) -> None:
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
-
-
-def _stats(wall: list[float], cpu: list[float]) -> dict[str, float]:
-    q = statistics.quantiles(wall, n=4) if len(wall) > 1 else [wall[0]] * 3
-    return {"median_s": statistics.median(wall), "q1_s": q[0], "q3_s": q[2], "min_s": min(wall),
-            "max_s": max(wall), "cpu_s": statistics.median(cpu), "cpu_min_s": min(cpu), "repeats": len(wall)}
-
-
-def time_interleaved(calls: dict[str, Callable[[], object]], device: str,
-                     repeats: int) -> dict[str, dict[str, float]]:
-    """Wall / CPU time statistics of each call, timed in turns (A B C A B C ...) after one warm-up
-    each, so that a change of machine load hits every call alike.  Calls under a second are
-    repeated at least 7 times."""
-    t0 = time.perf_counter()
-    for fn in calls.values():
-        fn()
-        _sync(device)
-    if (time.perf_counter() - t0) / len(calls) < 1.0:
-        repeats = max(repeats, 7)
-    wall: dict[str, list[float]] = {k: [] for k in calls}
-    cpu: dict[str, list[float]] = {k: [] for k in calls}
-    for _ in range(repeats):
-        for k, fn in calls.items():
-            t0, c0 = time.perf_counter(), time.process_time()
-            fn()
-            _sync(device)
-            wall[k].append(time.perf_counter() - t0)
-            cpu[k].append(time.process_time() - c0)
-    return {k: _stats(wall[k], cpu[k]) for k in calls}
-
-
-def rel_rmse(x: Tensor, ref: Tensor, mask: Tensor | None = None) -> float:
-    d2, r2 = (x - ref) ** 2, ref**2
-    if mask is not None:
-        d2, r2 = d2 * mask, r2 * mask
-    den = float(r2.sum())
-    return float("nan") if den == 0 else math.sqrt(float(d2.sum()) / den)
-
-
-def diffuse_quadrature(scene: PanoScene, chunk: int = 1024) -> Tensor:
-    """Noise-free diffuse layer ``[3, H, W]``: B (1-M)/pi ∫ L (n.l)+ dl by quadrature.
-
-    L is each pixel's bilinear mix of probes, itself bilinearly interpolated: integrated on the
-    prefilter's 4x4 supersampled grid of every probe texel (the same radiance Monte Carlo sees).
-    """
-    from phyir.shading.prefilter import _fine_grid
-    from phyir.shading.render import probe_weights
-
-    H, W = scene.size
-    Hp, Wp = scene.probe_grid  # type: ignore[misc]
-    h, w = scene.probe_size  # type: ignore[misc]
-    dev = scene.normal.device
-    d, to_probe = (t.to(dev, torch.float32) for t in _fine_grid(h, w))
-    n = scene.normal.reshape(3, -1).T
-    pidx, pw = probe_weights(H, W, Hp, Wp, dev)
-    probes = scene.probes.reshape(Hp * Wp, 3, h * w)
-    out = torch.empty(H * W, 3, device=dev)
-    for i in range(0, H * W, chunk):
-        k = (n[i:i + chunk] @ d.T).clamp(min=0) @ to_probe  # [p, h*w]: ∫ (n.l)+ L dl per texel
-        x = probes[pidx[i:i + chunk]]  # [p, 4, 3, h*w]
-        out[i:i + chunk] = torch.einsum("pt,pj,pjct->pc", k, pw[i:i + chunk], x)
-    rho = (scene.albedo * (1 - scene.metallic)).reshape(3, -1).T
-    return (rho * out / math.pi).T.reshape(3, H, W)
-
-
-class Reference:
-    """Converged layers: quadrature diffuse; specular as the mean of two independent importance-
-    sampled halves, whose difference estimates the remaining noise (per layer, relative)."""
-
-    def __init__(self, scene: PanoScene, spp: int, mask: Tensor, skips=True):
-        from phyir.shading.render import render_scene
-
-        a = render_scene(scene, spp=spp // 2, seed=1_000_003, skips=skips)["specular"]
-        b = render_scene(scene, spp=spp // 2, seed=2_000_003, skips=skips)["specular"]
-        diffuse = diffuse_quadrature(scene) * mask
-        spec = (a + b) / 2
-        self.layers = {"diffuse": diffuse, "specular": spec, "image": diffuse + spec}
-        self.mask = mask
-        noise2 = float((((a - b) / 2) ** 2 * mask).sum())  # |ref - truth|^2 ~ |a - b|^2 / 4
-        self.noise = {k: (0.0 if k == "diffuse" else
-                          math.sqrt(noise2 / max(float((t**2 * mask).sum()), 1e-30)))
-                      for k, t in self.layers.items()}
-        self.spp = spp
-
-    def errors(self, out: dict[str, Tensor]) -> dict[str, float]:
-        res = {}
-        for k, ref in self.layers.items():
-            raw = rel_rmse(out[k], ref, self.mask)
-            noise = self.noise[k]
-            res[f"err_raw_{k}"] = raw
-            res[f"err_{k}"] = math.sqrt(max(raw * raw - noise * noise, 0.0)) if math.isfinite(raw) else raw
-        return res
-
-
-# ---------------------------------------------------------------------------------------------
-# the benchmark
-
 FULL = {"size": (128, 256), "block": 2, "probe": (16, 32), "ref_spp": 1024, "repeats": 3, "memory": True,
         "is_spp": (1, 2, 4, 8, 16, 32, 64, 128, 256), "uniform_spp": (16, 64, 256), "skip_spp": 64,
         "seeds": 6}
@@ -221,50 +49,12 @@ QUICK = {"size": (64, 128), "block": 2, "probe": (16, 32), "ref_spp": 512, "repe
          "is_spp": (1, 2, 4, 16, 64), "uniform_spp": (16, 64), "skip_spp": 16, "seeds": 2}
 
 
-def _loglog(xs: list[float], ys: list[float], y: float) -> float:
-    """x where the piecewise log-log line through (xs, ys) reaches y (ys decreasing in xs).
-
-    Extrapolates beyond the last point with the Monte Carlo rate y ~ x^-1/2 (and before the first
-    with the first segment's slope clamped to that rate).
-    """
-    lx, ly = [math.log(v) for v in xs], [math.log(v) for v in ys]
-    t = math.log(y)
-    for i in range(len(xs) - 1):
-        if ly[i] >= t >= ly[i + 1] and ly[i] != ly[i + 1]:
-            f = (t - ly[i]) / (ly[i + 1] - ly[i])
-            return math.exp(lx[i] + f * (lx[i + 1] - lx[i]))
-    if t < ly[-1]:
-        return math.exp(lx[-1] + 2 * (ly[-1] - t))
-    return math.exp(lx[0] - 2 * (t - ly[0]))
-
-
-def _interp_time(spps: list[float], times: list[float], spp: float) -> float:
-    """Time at ``spp``: log-log interpolation, linear in spp beyond the measured range."""
-    if spp >= spps[-1]:
-        return times[-1] * spp / spps[-1]
-    if spp <= spps[0]:
-        return times[0] * spp / spps[0]
-    for i in range(len(spps) - 1):
-        if spps[i] <= spp <= spps[i + 1]:
-            f = (math.log(spp) - math.log(spps[i])) / (math.log(spps[i + 1]) - math.log(spps[i]))
-            return math.exp(math.log(times[i]) + f * (math.log(times[i + 1]) - math.log(times[i])))
-    raise AssertionError("unreachable")
-
-
-def _shaded_mask(scene: PanoScene) -> Tensor:
-    m = torch.ones_like(scene.image[:1])
-    for name in ("emission", "invalid"):
-        if name in scene.masks:
-            m = m * (scene.masks[name] <= 0.5)
-    return m
-
-
 def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     """Time and error of uniform / importance sampling at several spp and of the prefiltered path."""
     from phyir.shading import prefilter
     from phyir.shading.render import render_scene
 
-    mask = _shaded_mask(scene)
+    mask = shaded_mask(scene)
     t0 = time.perf_counter()
     ref = Reference(scene, cfg["ref_spp"], mask)
     log(f"  reference: quadrature diffuse + {cfg['ref_spp']} spp specular in "
@@ -277,7 +67,7 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
     def make(method: str, spp: int) -> Callable[[], dict[str, Tensor]]:
         def call() -> dict[str, Tensor]:
             if method.startswith("prefiltered"):
-                prefilter._cache.clear()  # time the prefiltering too, every call
+                prefilter.clear_cache()  # time the prefiltering too, every call
             if method == PREFILTERED_F32:
                 old, prefilter.LEVEL_PRECISION = prefilter.LEVEL_PRECISION, "float32"
                 try:
@@ -315,10 +105,10 @@ def bench_methods(scene: PanoScene, cfg: dict, device: str, log: Callable[[str],
 
 def prefiltered_breakdown(scene: PanoScene, out: dict[str, Tensor], ref: Reference) -> list[dict]:
     """Where the split sum errs: specular error and bias of the prefiltered render by n.v and R."""
-    from phyir.shading.render import _view_dirs
+    from phyir.shading.render import view_dirs
 
     H, W = scene.size
-    nv = (scene.normal * _view_dirs(H, W, scene.normal.device, scene.normal.dtype)).sum(0, keepdim=True)
+    nv = (scene.normal * view_dirs(H, W, scene.normal.device, scene.normal.dtype)).sum(0, keepdim=True)
     rough = scene.roughness
     rows = []
     bins = (("n.v", nv, (0.0, 0.3, 0.5, 0.7, 1.01)), ("R", rough, (0.0, 0.2, 0.4, 0.6, 0.8, 1.01)))
@@ -335,42 +125,6 @@ def prefiltered_breakdown(scene: PanoScene, out: dict[str, Tensor], ref: Referen
                          "share_of_err2": float((e**2).sum() / (((out["specular"] - ref.layers["specular"])
                                                                   * ref.mask) ** 2).sum().clamp(min=1e-30))})
     return rows
-
-
-def summarize(res: dict) -> dict:
-    """Targets: samples IS needs for uniform's error; prefiltered speed-up at equal error."""
-    rows = res["rows"]
-    isr = [r for r in rows if r["method"] == "importance"]
-    spp = [r["spp"] for r in isr]
-    out = {}
-    for layer in ("image", "specular"):
-        err = [r[f"err_{layer}"] for r in isr]
-        if not all(math.isfinite(e) and e > 0 for e in err):
-            continue
-        ratios = []
-        for r in rows:
-            if r["method"] == "uniform" and r[f"err_{layer}"] > 0:
-                e_u = r[f"err_{layer}"]
-                if e_u >= err[0]:  # already beaten at the smallest spp measured: a lower bound
-                    ratios.append({"uniform_spp": r["spp"], "uniform_err": e_u, "is_spp_same_err": spp[0],
-                                   "sample_ratio": r["spp"] / spp[0], "lower_bound": True})
-                    continue
-                need = _loglog(spp, err, e_u)
-                ratios.append({"uniform_spp": r["spp"], "uniform_err": e_u, "is_spp_same_err": need,
-                               "sample_ratio": r["spp"] / need, "lower_bound": False})
-        out[f"is_vs_uniform_{layer}"] = ratios
-    pref = next(r for r in rows if r["method"] == "prefiltered")
-    err = [r["err_image"] for r in isr]
-    if pref["err_image"] > 0 and all(e > 0 for e in err):
-        need = _loglog(spp, err, pref["err_image"])
-        cmp = {"prefiltered_err": pref["err_image"], "is_spp_same_err": need}
-        for key in ("median_s", "min_s", "cpu_s"):
-            t_is = _interp_time(spp, [r[key] for r in isr], need)
-            cmp[f"is_{key}"] = t_is
-            cmp[f"prefiltered_{key}"] = pref[key]
-            cmp[f"speedup_{key.split('_')[0]}"] = t_is / pref[key]
-        out["prefiltered_vs_is"] = cmp
-    return out
 
 
 def seed_spread(kind: str, cfg: dict, device: str, base: dict, log: Callable[[str], None]) -> dict:
@@ -394,18 +148,18 @@ def seed_spread(kind: str, cfg: dict, device: str, base: dict, log: Callable[[st
         sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"], seed=seed).to(device)
 
         def pf(scene: PanoScene = sc) -> dict[str, Tensor]:
-            prefilter._cache.clear()  # time the prefiltering too, every call
+            prefilter.clear_cache()  # time the prefiltering too, every call
             return render_scene(scene, method="prefiltered")
 
         if seed == 0:
             err_pf = next(r for r in base["rows"] if r["method"] == "prefiltered")["err_image"]
             err_is = [r["err_image"] for r in isr]
         else:
-            ref = Reference(sc, cfg["ref_spp"], _shaded_mask(sc))
+            ref = Reference(sc, cfg["ref_spp"], shaded_mask(sc))
             err_pf = ref.errors(pf())["err_image"]
             err_is = [ref.errors(render_scene(sc, spp=n, method="importance", seed=7))["err_image"]
                       for n in spp]
-        need = _loglog(spp, err_is, err_pf)
+        need = loglog(spp, err_is, err_pf)
         timed = min(max(1, round(need)), spp[-1])
         scale = need / timed if need > spp[-1] else 1.0
 
@@ -426,19 +180,6 @@ def seed_spread(kind: str, cfg: dict, device: str, base: dict, log: Callable[[st
     return {"rows": rows, **spread_summary(rows)}
 
 
-def spread_summary(rows: list[dict]) -> dict:
-    """Median and minimum over the seeds of the speed-ups in wall and CPU time (one thread: CPU time
-    is the fairer measure on a shared machine), and how many seeds reach 20x in each."""
-    out = {}
-    for key in ("median", "cpu"):
-        sp = [r[f"speedup_{key}"] for r in rows]
-        name = "" if key == "median" else "_cpu"
-        out[f"speedup{name}_median_of_seeds"] = statistics.median(sp)
-        out[f"speedup{name}_min_of_seeds"] = min(sp)
-        out[f"seeds{name}_at_20x"] = sum(v >= 20 for v in sp)
-    return out
-
-
 def _sample_count(classes: dict[str, Tensor], spp: int, rough_all: bool = False) -> int:
     """Direction samples (and reflected look-ups) a frame takes with these pixel classes."""
     half = (spp + 1) // 2
@@ -454,7 +195,7 @@ def bench_skips(scene: PanoScene, cfg: dict, device: str, log: Callable[[str], N
     """
     from phyir.shading.render import pixel_classes, render_scene
 
-    mask = _shaded_mask(scene)
+    mask = shaded_mask(scene)
     spp = cfg["skip_spp"]
     ref = Reference(scene, cfg["ref_spp"], mask, skips={"emissive"})
     variants = {"none": set(), "emissive": {"emissive"}, "mirror": {"emissive", "mirror"},
@@ -594,32 +335,8 @@ def energy_curves(path: Path | None = None) -> dict:
                            "specular_mean": float(s.mean())}
     curves["furnace"] = furnace
     if path is not None:
-        _plot_energy(curves, roughs, path)
+        plot_energy(curves, roughs, path)
     return curves
-
-
-def _plot_energy(curves: dict, roughs: tuple[float, ...], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from phyir.bench.report import save_figure
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for r in roughs:
-        a.plot(curves["n_dot_v"], curves["dielectric_total"][str(r)], label=f"R = {r}")
-        b.plot(curves["n_dot_v"], curves["metal_loss"][str(r)], label=f"R = {r}")
-    a.axhline(1.0, color="k", lw=0.8, ls=":")
-    a.set(xlabel="n.v", ylabel="albedo (diffuse + specular)",
-          title="white dielectric (B=1, M=0): reflects more than it receives")
-    b.set(xlabel="n.v", ylabel="1 - specular albedo",
-          title="white metal (B=1, M=1): energy the specular lobe loses")
-    for ax in (a, b):
-        ax.grid(True, alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path, dpi=110)
 
 
 def run_bench(out_dir: str | os.PathLike, *, quick: bool = False, device: str = "cpu",
@@ -670,125 +387,6 @@ def _run(out_dir: str | os.PathLike, cfg: dict, device: str, log: Callable[[str]
     return result
 
 
-def format_table(result: dict) -> str:
-    """The printed / documented tables (markdown)."""
-    cfg = result["config"]
-    lines = [f"device {cfg['device']}, {cfg['threads']} thread(s), {cfg['size'][0]}x{cfg['size'][1]}, "
-             f"prefiltered level matmul in {cfg.get('level_matmul', 'float32')}, "
-             f"load average {cfg['loadavg_start'][0]:.1f} -> {cfg['loadavg_end'][0]:.1f}", ""]
-    for kind, res in result["scenes"].items():
-        lines += [f"scene {kind} (reference {res['reference_spp']} spp, noise "
-                  f"{res['reference_noise']['image']:.1e} removed)", "",
-                  "| method | spp | time ms (median) | IQR ms | min ms | CPU ms | err image | err diffuse "
-                  "| err specular |",
-                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-        for r in res["rows"]:
-            lines.append(f"| {r['method']} | {r['spp'] or '-'} | {r['median_s'] * 1e3:.1f} | "
-                         f"{r['q1_s'] * 1e3:.0f}-{r['q3_s'] * 1e3:.0f} | {r['min_s'] * 1e3:.0f} | "
-                         f"{r['cpu_s'] * 1e3:.0f} | "
-                         f"{r['err_image']:.4f} | "
-                         f"{r['err_diffuse']:.4f} | {r['err_specular']:.4f} |")
-        sm = res["summary"]
-        for layer in ("image", "specular"):
-            for q in sm.get(f"is_vs_uniform_{layer}", []):
-                if q["lower_bound"]:
-                    lines.append(f"- uniform {q['uniform_spp']} spp ({layer} err {q['uniform_err']:.4f}) is "
-                                 f"worse than importance at {q['is_spp_same_err']} spp: "
-                                 f">= {q['sample_ratio']:.0f}x fewer samples")
-                else:
-                    lines.append(f"- uniform {q['uniform_spp']} spp ({layer} err {q['uniform_err']:.4f}) = "
-                                 f"importance {q['is_spp_same_err']:.1f} spp: "
-                                 f"{q['sample_ratio']:.1f}x fewer samples")
-        for b in res.get("prefiltered_breakdown", []):
-            lines.append(f"- prefiltered specular, {b['by']} in [{b['lo']:.1f}, {b['hi']:.1f}) "
-                         f"({100 * b['pixels']:.0f}% of pixels): error {b['err_specular']:.3f}, "
-                         f"bias {b['bias_specular']:+.3f}, "
-                         f"share of the squared error {b['share_of_err2']:.2f}")
-        p = sm.get("prefiltered_vs_is")
-        if p:
-            lines.append(f"- prefiltered (err {p['prefiltered_err']:.4f}, "
-                         f"{p['prefiltered_median_s'] * 1e3:.1f} ms) "
-                         f"= importance {p['is_spp_same_err']:.0f} spp ({p['is_median_s'] * 1e3:.0f} ms): "
-                         f"{p['speedup_median']:.1f}x faster (median wall), "
-                         f"{p['speedup_min']:.1f}x (min wall), {p['speedup_cpu']:.1f}x (CPU time)")
-        sd = res.get("seeds")
-        if sd:
-            lines += ["", f"prefiltered against importance sampling on {len(sd['rows'])} {kind} scenes "
-                      "(seeds; each timed head to head with importance sampling at the matching spp)", "",
-                      "| seed | prefiltered err image | ms (median) | = importance spp "
-                      "| speed-up (median wall) | speed-up (CPU) |",
-                      "| ---: | ---: | ---: | ---: | ---: | ---: |"]
-            for r in sd["rows"]:
-                lines.append(f"| {r['seed']} | {r['prefiltered_err']:.4f} | "
-                             f"{r['prefiltered_median_s'] * 1e3:.1f} | {r['is_spp_same_err']:.0f} | "
-                             f"{r['speedup_median']:.1f}x | {r['speedup_cpu']:.1f}x |")
-            lines.append("- speed-up over the seeds, median wall time: median "
-                         f"{sd['speedup_median_of_seeds']:.1f}x, "
-                         f"min {sd['speedup_min_of_seeds']:.1f}x, {sd['seeds_at_20x']} of {len(sd['rows'])} "
-                         f"scenes at >= 20x; CPU time: median {sd['speedup_cpu_median_of_seeds']:.1f}x, "
-                         f"min {sd['speedup_cpu_min_of_seeds']:.1f}x, {sd['seeds_cpu_at_20x']} of "
-                         f"{len(sd['rows'])} scenes at >= 20x")
-        lines.append("")
-    for m in result.get("memory", []):
-        lines.append(f"- memory, {m['size'][0]}x{m['size'][1]} {m['method']} {m['spp']} spp "
-                     f"{'forward+backward' if m['grad'] else 'forward'}: +{m['extra_peak_mb']:.0f} MB peak "
-                     f"(probes {m['probes_mb']:.0f} MB)")
-    if result.get("memory"):
-        lines.append("")
-    sk = result["skips"][-1]["summary"]
-    lines += [f"skips (mixed scene, importance {cfg['skip_spp']} spp)", "",
-              "| skip | pixels | samples saved | wall time saved (median) | CPU time saved (min) "
-              "| err image with / without | err on its pixels with / without "
-              "| specular err on its pixels with / without |",
-              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for e in sk:
-        lines.append(f"| {e['skip']} | {100 * e['fraction']:.1f}% | {100 * e['samples_saved_frac']:.1f}% | "
-                     f"{e['time_saved_s'] * 1e3:.0f} ms ({100 * e['time_saved_frac']:.0f}%) | "
-                     f"{e['cpu_saved_s'] * 1e3:.0f} ms ({100 * e['cpu_saved_frac']:.0f}%) | "
-                     f"{e['err_image']:.4f} / {e['err_image_without']:.4f} | "
-                     + (f"{e['err_pixels']:.4f} / {e['err_pixels_without']:.4f} | "
-                        f"{e['err_specular_pixels']:.4f} / {e['err_specular_pixels_without']:.4f} |"
-                        if "err_pixels" in e else "n/a (image value by definition) | n/a |"))
-    return "\n".join(lines)
-
-
-def plot(result: dict, path: Path) -> None:
-    """Time against error (log-log): one column per scene, rows for the image and specular layers."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from phyir.bench.report import save_figure
-
-    scenes = result["scenes"]
-    cfg = result["config"]
-    fig, axes = plt.subplots(2, len(scenes), figsize=(5.5 * len(scenes), 8), squeeze=False)
-    for col, (kind, res) in enumerate(scenes.items()):
-        for row, layer in enumerate(("image", "specular")):
-            ax = axes[row, col]
-            key = f"err_{layer}"
-            for method, style in (("uniform", "o--"), ("importance", "s-")):
-                rs = [r for r in res["rows"] if r["method"] == method]
-                ax.errorbar([r["median_s"] * 1e3 for r in rs], [r[key] for r in rs],
-                            xerr=[[(r["median_s"] - r["q1_s"]) * 1e3 for r in rs],
-                                  [(r["q3_s"] - r["median_s"]) * 1e3 for r in rs]], fmt=style, label=method)
-                for r in rs:
-                    ax.annotate(str(r["spp"]), (r["median_s"] * 1e3, r[key]), fontsize=7,
-                                xytext=(3, 3), textcoords="offset points")
-            p = next(r for r in res["rows"] if r["method"] == "prefiltered")
-            ax.plot([p["median_s"] * 1e3], [p[key]], "r*", ms=12, label="prefiltered")
-            for q in (r for r in res["rows"] if r["method"] == PREFILTERED_F32):
-                ax.plot([q["median_s"] * 1e3], [q[key]], "kx", ms=9, label="prefiltered, float32 levels")
-            ax.set(xscale="log", yscale="log", xlabel="time per image (ms, median)",
-                   ylabel=f"relative RMSE ({layer})",
-                   title=f"{kind}: {layer} ({cfg['size'][0]}x{cfg['size'][1]}, {cfg['device']})")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
 def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[str], None] = print) -> dict:
     """Errors only (no timing): uniform against importance sampling at the benchmark's sample counts
     on one scene, and the importance-sampled spp that reaches each uniform error (layers image,
@@ -799,7 +397,7 @@ def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[
     cfg = dict(FULL if cfg is None else cfg)
     H, W = cfg["size"]
     sc = bench_scene(kind, H, W, cfg["block"], cfg["probe"])
-    mask = _shaded_mask(sc)
+    mask = shaded_mask(sc)
     ref = Reference(sc, cfg["ref_spp"], mask)
     rows = []
     methods = (("prefiltered", (0,)), ("uniform", cfg["uniform_spp"]), ("importance", cfg["is_spp"]))
@@ -813,7 +411,7 @@ def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[
     ratios = []
     pref = rows[0]["err_image"]
     if math.isfinite(pref) and pref > 0:
-        need = _loglog([r["spp"] for r in isr], [r["err_image"] for r in isr], pref)
+        need = loglog([r["spp"] for r in isr], [r["err_image"] for r in isr], pref)
         ratios.append({"layer": "image", "prefiltered_err": pref, "is_spp_same_err": need})
         log(f"  prefiltered image error {pref:.4f} = importance {need:.1f} spp")
     for layer in ("image", "diffuse", "specular"):
@@ -822,7 +420,7 @@ def sample_ratios(kind: str = "glossy", cfg: dict | None = None, log: Callable[[
             continue
         for r in rows:
             if r["method"] == "uniform":
-                need = _loglog([r_["spp"] for r_ in isr], err, r[f"err_{layer}"])
+                need = loglog([r_["spp"] for r_ in isr], err, r[f"err_{layer}"])
                 if r[f"err_{layer}"] >= err[0]:  # beaten at the smallest spp measured: a lower bound
                     need = float(isr[0]["spp"])
                 ratios.append({"layer": layer, "uniform_spp": r["spp"], "uniform_err": r[f"err_{layer}"],
@@ -845,7 +443,7 @@ def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repe
 
     def make(method: str, spp: int) -> Callable[[], object]:
         def call() -> object:
-            prefilter._cache.clear()
+            prefilter.clear_cache()
             return render_scene(sc, spp=max(spp, 1), method=method, seed=7)
         return call
 
@@ -872,8 +470,8 @@ def prefiltered_cpu(kind: str = "metal", spps: tuple[int, ...] = (64, 128), repe
 
 def resummarize(out_dir: str | os.PathLike) -> dict:
     """Recompute the summaries of ``out_dir/render.json`` from its measured rows (after a change to
-    :func:`summarize` or :func:`spread_summary`; nothing is re-measured) and rewrite it, its table in
-    ``report.md``/``report.json`` and its plot."""
+    :func:`~phyir.bench.render_report.summarize` or :func:`~phyir.bench.render_report.spread_summary`;
+    nothing is re-measured) and rewrite it, its table in ``report.md``/``report.json`` and its plot."""
     import json
 
     from phyir.bench import report as bench_report

@@ -72,7 +72,7 @@ def _scene_file(scene, folder: str, name: str, probes: bool):
 
 
 def _diff(out, ref, layers) -> dict[str, float]:
-    from phyir.bench.render import rel_rmse
+    from phyir.bench.render_measure import rel_rmse
 
     return {k: rel_rmse(getattr(out, k).float(), getattr(ref, k).float()) for k in layers
             if getattr(out, k) is not None and getattr(ref, k) is not None}
@@ -135,7 +135,7 @@ def predict_variants(cfg: dict, device: str, log: Callable[[str], None]) -> dict
 
 
 def _diff_t(a: torch.Tensor, b: torch.Tensor) -> float:
-    from phyir.bench.render import rel_rmse
+    from phyir.bench.render_measure import rel_rmse
 
     return rel_rmse(a.float(), b.float())
 

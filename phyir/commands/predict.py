@@ -66,13 +66,11 @@ def output_paths(files: list[Path], output: str) -> list[Path]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     import torch
     from tqdm import tqdm
 
     from phyir.errors import PhyIRError
-    from phyir.inference import OUTPUTS, predict
+    from phyir.inference import OUTPUTS, predict_with_report
     from phyir.io import save_scene
 
     files = collect_inputs(args.inputs)
@@ -102,8 +100,9 @@ def run(args: argparse.Namespace) -> int:
             continue
         try:
             # the model is loaded (once, cached) only if some layer has to be computed
-            scene = predict(src, weights=args.weights, device=device, outputs=outputs,
-                            lighting=args.lighting, net_size=net_size, hdr=False if args.ldr else None)
+            scene, report = predict_with_report(
+                src, weights=args.weights, device=device, outputs=outputs, lighting=args.lighting,
+                net_size=net_size, hdr=False if args.ldr else None)
             dst.parent.mkdir(parents=True, exist_ok=True)
             save_scene(scene, dst, half=args.half)
         except PhyIRError as e:  # report and go on with the other inputs
@@ -112,11 +111,11 @@ def run(args: argparse.Namespace) -> int:
             bar.update(1)
             continue
         if not args.quiet:
-            secs = json.loads(scene.meta["predict.seconds"])
+            secs = report.seconds
             H, W = scene.size
             parts = ", ".join(f"{k} {v:.2f}" for k, v in secs.items() if k != "total" and v >= 0.01)
             bar.write(f"{src} -> {dst} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
-                      f"computed: {scene.meta['predict.computed'] or 'nothing'})")
+                      f"computed: {' '.join(report.computed) or 'nothing'})")
         bar.update(1)
     bar.close()
     return status

@@ -38,7 +38,7 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
 @dataclass
-class Material:
+class ObjectMaterial:
     """The BRDF parameters of phyir.shading.brdf: base colour (linear RGB), roughness R, metalness M."""
 
     base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
@@ -50,11 +50,11 @@ class Material:
 
 
 # supplement Table 2 (the relighting spheres), names as on the command line
-PRESETS: dict[str, Material] = {name.replace("_", "-"): Material(tuple(b), r, m)
+PRESETS: dict[str, ObjectMaterial] = {name.replace("_", "-"): ObjectMaterial(tuple(b), r, m)
                                 for name, (b, r, m) in RELIGHT_MATERIALS.items()}
 
 
-def parse_material(text: str) -> Material:
+def parse_material(text: str) -> ObjectMaterial:
     """A preset name (diffuse, matte-silver, mirror-silver) or ``B,B,B,R,M`` with values in [0, 1]."""
     key = text.strip().lower().replace("_", "-")
     if key in PRESETS:
@@ -67,7 +67,7 @@ def parse_material(text: str) -> Material:
     if len(vals) != 5 or not all(np.isfinite(vals)) or not all(0 <= x <= 1 for x in vals):
         raise InputError("--material", f"expected one of {', '.join(PRESETS)} or B,B,B,R,M with "
                                        f"values in [0, 1], got {text!r}")
-    return Material(tuple(vals[:3]), vals[3], vals[4])  # type: ignore[arg-type]
+    return ObjectMaterial(tuple(vals[:3]), vals[3], vals[4])  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -339,7 +339,7 @@ class SceneObject:
     """One inserted object: a mesh, its material and its placement (world frame, metres)."""
 
     mesh: Mesh
-    material: Material = field(default_factory=Material)
+    material: ObjectMaterial = field(default_factory=ObjectMaterial)
     position: np.ndarray = field(default_factory=lambda: np.zeros(3))  # of the mesh's local origin
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     scale: float = 1.0

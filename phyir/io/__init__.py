@@ -16,9 +16,8 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
-import stat
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,18 +26,16 @@ from torch import Tensor
 
 from phyir.errors import InputError, PhyIRError
 from phyir.io import exr, ldr, rgbe
+from phyir.io.sniff import ASPECT_TOL, MAX_SIZE, MIN_SIZE, check_panorama_size, check_size, header_size, sniff
 from phyir.pano import directions
 from phyir.scene import NORMAL_TOL, PanoScene, SceneError
 
 __all__ = [
     "InputError", "InputWarning", "atomic_write", "load_panorama", "load_scene", "save_panorama",
-    "save_scene", "read_raw", "check_panorama_size", "LAYER_CHANNELS",
+    "save_scene", "read_raw", "read_scene", "check_panorama_size", "check_size", "header_size", "sniff",
+    "LAYER_CHANNELS", "MIN_SIZE", "MAX_SIZE", "ASPECT_TOL",
 ]
 
-# Panorama size limits (rows x columns) and the accepted aspect ratio W/H = 2 +- ASPECT_TOL.
-MIN_SIZE = (4, 8)
-MAX_SIZE = (8192, 16384)
-ASPECT_TOL = 0.02
 META_PREFIX = "phyir."
 
 # channel names of each layer in the scene part (docs/file-formats.md)
@@ -122,68 +119,29 @@ class RawFile:
     format: str  # "OpenEXR", "Radiance HDR", "PNG", "JPEG"
     detail: str  # e.g. "2 parts", "16-bit RGBA", "-Y 512 +X 1024"
     parts: list[RawPart]
+    kind: str = "exr"  # the signature's format (:func:`sniff`): "exr", "hdr", "png" or "jpeg"
 
     def part(self, name: str) -> RawPart | None:
         return next((p for p in self.parts if p.name == name), None)
 
 
-def sniff(path: str | os.PathLike) -> str:
-    """The format of a file from its signature: "exr", "hdr", "png" or "jpeg"."""
-    p = os.fspath(path)
-    try:
-        st = os.stat(p)
-        if stat.S_ISDIR(st.st_mode):
-            raise InputError(p, "is a folder, not an image file")
-        with open(p, "rb") as f:
-            head = f.read(8)
-    except FileNotFoundError:
-        raise InputError(p, "no such file") from None
-    except OSError as e:
-        raise InputError(p, f"cannot read: {e.strerror}") from None
-    if not head:
-        raise InputError(p, "empty file (0 bytes)")
-    if head.startswith(exr.MAGIC):
-        return "exr"
-    if head.startswith(b"#?"):
-        return "hdr"
-    if head.startswith(ldr.PNG_MAGIC):
-        return "png"
-    if head.startswith(ldr.JPEG_MAGIC):
-        return "jpeg"
-    if p.lower().endswith(".exr"):
-        raise InputError(p, "not an OpenEXR file (wrong magic number)")
-    raise InputError(p, "not a supported image (expected OpenEXR, Radiance .hdr, PNG or JPEG)")
-
-
-def check_size(path: str, H: int, W: int, what: str = "image") -> None:
-    """Refuse sizes no real panorama has (before anything is allocated)."""
-    if H < 1 or W < 1:
-        raise InputError(path, f"empty {what} ({H}x{W})")
-    if H > MAX_SIZE[0] or W > MAX_SIZE[1]:
-        raise InputError(path, f"absurd size: {what} is {H}x{W} (HxW), larger than the limit "
-                               f"{MAX_SIZE[0]}x{MAX_SIZE[1]}")
-
-
-def check_panorama_size(path: str, H: int, W: int) -> None:
-    """Size limits of :func:`check_size`, at least MIN_SIZE, and W/H within 2 +- ASPECT_TOL."""
-    check_size(path, H, W, "panorama")
-    if H < MIN_SIZE[0] or W < MIN_SIZE[1]:
-        raise InputError(path, f"absurd size: {H}x{W} (HxW) is smaller than the minimum "
-                               f"{MIN_SIZE[0]}x{MIN_SIZE[1]}")
-    if abs(W / H - 2) > ASPECT_TOL:
-        raise InputError(path, f"aspect ratio {W}/{H} = {W / H:.3f} is not that of an equirectangular "
-                               f"panorama (width/height must be 2 +- {ASPECT_TOL})")
-
-
-def read_raw(path: str | os.PathLike, panorama: bool = True) -> RawFile:
+def read_raw(path: str | os.PathLike, panorama: bool = True,
+             limit: Callable[[str, int, int], None] | None = None) -> RawFile:
     """Read every part and layer of a file as stored (no repair).
 
     Sizes are checked from the header before pixels are decoded; with ``panorama`` the main image
-    must also pass :func:`check_panorama_size`.
+    must also pass :func:`check_panorama_size`, and ``limit(path, H, W)`` (a caller's own bound,
+    e.g. what predict can hold in memory) when given.
     """
     p = os.fspath(path)
     fmt = sniff(p)
-    check = check_panorama_size if panorama else check_size
+    size_rule = check_panorama_size if panorama else check_size
+
+    def check(path: str, H: int, W: int) -> None:
+        size_rule(path, H, W)
+        if limit is not None:
+            limit(path, H, W)
+
     if fmt == "exr":
         return _read_raw_exr(p, check)
     if fmt == "hdr":
@@ -192,14 +150,14 @@ def read_raw(path: str | os.PathLike, panorama: bool = True) -> RawFile:
         img = rgbe.read_pixels(p, h)
         part = RawPart("image", h.height, h.width, dict.fromkeys("RGB", "RGBE"))
         part.layers["image"], part.layer_channels["image"] = img.transpose(2, 0, 1), ("R", "G", "B")
-        return RawFile(p, "Radiance HDR", h.resolution, [part])
+        return RawFile(p, "Radiance HDR", h.resolution, [part], fmt)
     info = ldr.read_info(p)
     check(p, info.height, info.width)
     img = ldr.read_pixels(p, info)
     chans = {"L": "Y", "LA": "YA", "P": "RGB", "RGB": "RGB", "RGBA": "RGBA"}.get(info.mode, info.mode)
     part = RawPart("image", info.height, info.width, dict.fromkeys(chans, f"{info.bits}-bit"))
     part.layers["image"], part.layer_channels["image"] = img.transpose(2, 0, 1), tuple(chans)
-    return RawFile(p, info.format, f"{info.bits}-bit {info.mode}", [part])
+    return RawFile(p, info.format, f"{info.bits}-bit {info.mode}", [part], fmt)
 
 
 def _read_raw_exr(p: str, check) -> RawFile:
@@ -300,7 +258,14 @@ def load_scene(path: str | os.PathLike) -> PanoScene:
     the camera), +-Inf -> the layer's largest/smallest finite value, values outside a layer's
     range clamped, non-unit normals renormalised.  The result passes ``PanoScene.validate``.
     """
-    raw = read_raw(path)
+    return read_scene(path)[0]
+
+
+def read_scene(path: str | os.PathLike,
+               limit: Callable[[str, int, int], None] | None = None) -> tuple[PanoScene, str]:
+    """:func:`load_scene` and the file's format ("exr", "hdr", "png", "jpeg"), the file sniffed once;
+    ``limit(path, H, W)`` is checked from the header before decoding (see :func:`read_raw`)."""
+    raw = read_raw(path) if limit is None else read_raw(path, limit=limit)
     main = _main_part(raw)
     kw: dict = {}
     for name in LAYER_CHANNELS:
@@ -321,7 +286,7 @@ def load_scene(path: str | os.PathLike) -> PanoScene:
         warnings.warn(f"{raw.path}: ignored {', '.join(ignored)}", InputWarning, stacklevel=2)
     scene = PanoScene(**kw, masks=masks, meta=meta)
     try:
-        return scene.validate()
+        return scene.validate(), raw.kind
     except SceneError as e:  # pragma: no cover - _repair makes every layer valid
         raise InputError(raw.path, str(e)) from None
 

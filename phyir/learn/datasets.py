@@ -32,33 +32,13 @@ import torch.nn.functional as F
 from torch import Tensor
 from torch.utils.data import Dataset
 
+from phyir.color import aces, exposure_scale, luminance
 from phyir.errors import InputError
 from phyir.pano import resize_area
 from phyir.scene import PanoScene
 
-KEY = 0.25  # normalised median luminance
-SCALE_RANGE = (1e-6, 1e6)
-LUMA = (0.2126, 0.7152, 0.0722)
 MANIFEST_NAMES = ("manifest.json", "split.json", "splits.json")
 SPLITS = ("train", "val", "test")
-
-
-def luminance(image: Tensor) -> Tensor:
-    w = torch.tensor(LUMA, dtype=image.dtype, device=image.device).view(3, 1, 1)
-    return (image * w).sum(-3)
-
-
-def exposure_scale(image: Tensor) -> Tensor:
-    """Per-image factor bringing the median luminance to ``KEY``: [B,3,H,W] -> [B] (or [3,H,W] -> []).
-
-    The median ignores lamps and windows (a few bright pixels) and dark corners alike.  An image whose
-    median is zero (mostly black) falls back to its mean; an all-black image gets scale 1.
-    """
-    L = luminance(torch.nan_to_num(image.float(), nan=0.0, posinf=0.0).clamp(min=0)).flatten(-2)
-    med = L.median(dim=-1).values
-    stat = torch.where(med > 0, med, L.mean(-1))
-    scale = torch.where(stat > 0, KEY / stat.clamp(min=1e-30), torch.ones_like(stat))
-    return scale.clamp(*SCALE_RANGE)
 
 
 def normalize_scene(scene: PanoScene) -> PanoScene:
@@ -67,12 +47,6 @@ def normalize_scene(scene: PanoScene) -> PanoScene:
     out = scene.replace(image=scene.image * s, probes=None if scene.probes is None else scene.probes * s,
                         meta={**scene.meta, "exposure_scale": f"{s:.9g}"})
     return out
-
-
-def aces(x: Tensor) -> Tensor:
-    """Narkowicz's fit of the ACES filmic tone curve, [0, inf) -> [0, 1)."""
-    x = x.clamp(max=1e4)  # the curve is 1 long before; x^2 of x > 1e19 would overflow to inf/inf = NaN
-    return ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0, 1)
 
 
 def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
@@ -128,7 +102,8 @@ def augment_scene(scene: PanoScene, aug: Augment, gen: torch.Generator) -> PanoS
     """Random exposure, LDR simulation, yaw rotation and mirror of an unbatched scene."""
     from phyir.transforms import mirror_lr, rotate_yaw
 
-    u = lambda: float(torch.rand((), generator=gen))  # noqa: E731
+    def u():
+        return float(torch.rand((), generator=gen))
     if aug.rotate:
         step = _exact_shift_step(scene)
         scene = rotate_yaw(scene, step * int(torch.randint(scene.size[1] // step, (), generator=gen)))
@@ -275,7 +250,8 @@ def _write_cached(path: Path, scene: PanoScene) -> None:
     # float16 spans 6e-8 .. 65504: radiance is stored exposure-normalised and scaled back on reading,
     # else a 1e6-bright scene overflows to Inf and a 1e-6-dark one loses its bits
     s = float(exposure_scale(scene.image))
-    f16 = lambda t: t.clamp(-F16_MAX, F16_MAX).half().contiguous()  # noqa: E731
+    def f16(t):
+        return t.clamp(-F16_MAX, F16_MAX).half().contiguous()
     tensors = {name: f16(t * s if name == "image" else t) for name, t in scene.layers()}
     if scene.probes is not None:
         tensors["probes"] = f16(scene.probes * s)

@@ -183,7 +183,8 @@ def render_loss(image: Tensor, scene: PanoScene, non_emissive: Tensor | None = N
     from phyir.shading.render import render_scene
 
     H, W = size
-    down = lambda t: resize_area(t, H, W)  # noqa: E731
+    def down(t):
+        return resize_area(t, H, W)
     rs = PanoScene(image=down(image), depth=down(scene.depth),
                    normal=F.normalize(down(scene.normal), dim=1, eps=1e-6), albedo=down(scene.albedo),
                    roughness=down(scene.roughness), metallic=down(scene.metallic), probes=scene.probes)

@@ -243,7 +243,8 @@ def make_datasets(cfg: TrainConfig, need_probes: bool):
     if cfg.cache:
         import hashlib
 
-        fmt = lambda t: "x".join(map(str, t)) if t else "native"  # noqa: E731
+        def fmt(t):
+            return "x".join(map(str, t)) if t else "native"
         src = hashlib.sha1(str(Path(cfg.data).resolve()).encode()).hexdigest()[:8]
         kw["cache_dir"] = Path(cfg.out) / "cache" / f"{src}_{fmt(cfg.size)}_{fmt(cfg.probe_grid)}"
     train = SceneDataset(cfg.data, "train", augment=aug, limit=cfg.limit_train, **kw)
@@ -333,7 +334,8 @@ def _restrict_training(model: PhyIRModel, prefixes: tuple[str, ...]) -> None:
     """Freeze every parameter whose name starts with none of ``prefixes`` (no-op when empty)."""
     if not prefixes:
         return
-    under = lambda name, prefix: name == prefix or name.startswith(prefix + ".")  # noqa: E731
+    def under(name, prefix):
+        return name == prefix or name.startswith(prefix + ".")
     trainable = [n for n, p in model.named_parameters() if p.requires_grad]
     for prefix in prefixes:
         if not any(under(n, prefix) for n in trainable):

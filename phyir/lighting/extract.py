@@ -28,8 +28,8 @@ import torch
 from torch import Tensor
 
 from phyir import pano
+from phyir.color import luminance
 
-LUMA = (0.2126, 0.7152, 0.0722)
 THRESHOLD = 4.0
 MAX_LIGHTS = 4
 MIN_FRACTION = 0.02
@@ -50,13 +50,6 @@ class Light:
     def spread(self) -> float:
         """Angular radius (radians) of a disc source of this solid angle."""
         return math.acos(max(-1.0, 1.0 - self.solid_angle / (2 * math.pi)))
-
-
-def luminance(rgb: Tensor, dim: int = 0) -> Tensor:
-    w = torch.tensor(LUMA, dtype=rgb.dtype, device=rgb.device)
-    shape = [1] * rgb.dim()
-    shape[dim] = 3
-    return (rgb * w.view(shape)).sum(dim)
 
 
 def _components(mask: np.ndarray) -> tuple[np.ndarray, int]:

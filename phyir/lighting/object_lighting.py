@@ -24,7 +24,8 @@ import torch
 from torch import Tensor
 
 from phyir import pano
-from phyir.lighting.extract import LUMA, Light, extract_lights, luminance
+from phyir.color import LUMA, luminance
+from phyir.lighting.extract import Light, extract_lights
 from phyir.lighting.projection import DepthSurface, probe_positions
 from phyir.scene import PanoScene, SceneError
 
@@ -41,7 +42,7 @@ FAR_LIGHT = 30.0  # metres: lights whose ray leaves the depth surface are put th
 
 
 @lru_cache(maxsize=4)
-def _quadrature(h: int, w: int, s: int = SUPERSAMPLE) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def quadrature(h: int, w: int, s: int = SUPERSAMPLE) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Fine directions ``[3, F]`` (``s``^2 per texel), their solid angles ``[F]`` and the
     bilinear taps (indices, weights ``[F, 4]``) of an h x w probe at them."""
     hf, wf = h * s, w * s
@@ -63,7 +64,7 @@ def _texels(h: int, w: int) -> tuple[Tensor, Tensor]:
 
 def _cosine_rows(h: int, w: int, r: Tensor) -> Tensor:
     """``[R, h*w]`` float32: irradiance / pi at unit directions ``r [R, 3]`` (rows sum to one)."""
-    d, omega, idx, wgt = _quadrature(h, w)
+    d, omega, idx, wgt = quadrature(h, w)
     op = torch.zeros(r.shape[0], h * w, dtype=torch.float64)
     for a in range(0, r.shape[0], 256):
         k = (r[a:a + 256].double() @ d).clamp(min=0) * omega  # [rows, F]

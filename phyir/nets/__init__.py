@@ -2,8 +2,8 @@
 composed :class:`PhyIRModel` in two sizes (``full``, ``lite``)."""
 
 from phyir.nets.gmnet import GMNet
-from phyir.nets.gsnet import GSNet, guided_filter
+from phyir.nets.gsnet import GSNet
 from phyir.nets.lnet import LNet
 from phyir.nets.model import ModelConfig, PhyIRModel
 
-__all__ = ["GMNet", "GSNet", "LNet", "ModelConfig", "PhyIRModel", "guided_filter"]
+__all__ = ["GMNet", "GSNet", "LNet", "ModelConfig", "PhyIRModel"]

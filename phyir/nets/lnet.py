@@ -103,7 +103,8 @@ def probes_to_world(local: Tensor) -> Tensor:
     i0 = torch.remainder(j0.long(), w)
     i1 = torch.remainder(i0 + 1, w)
     shape = (*local.shape[:-4], Wp, *local.shape[-3:])
-    view = lambda t: t.view(Wp, 1, 1, w).expand(shape)  # noqa: E731
+    def view(t):
+        return t.view(Wp, 1, 1, w).expand(shape)
     out = torch.gather(local, -1, view(i0))
     if bool((f > 0).any()):
         out = (1 - view(f)) * out + view(f) * torch.gather(local, -1, view(i1))

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from phyir.learn.datasets import exposure_scale
+from phyir.color import exposure_scale
 from phyir.nets.gmnet import GMNet
 from phyir.nets.gsnet import GSNet
 from phyir.nets.lnet import LNet

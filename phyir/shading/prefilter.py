@@ -285,7 +285,7 @@ def level_size(h: int, w: int, alpha: float) -> tuple[int, int]:
 
 
 @lru_cache(maxsize=8)
-def _fine_grid(h: int, w: int) -> tuple[Tensor, Tensor]:
+def fine_grid(h: int, w: int) -> tuple[Tensor, Tensor]:
     """Fine quadrature directions ``[F, 3]`` and their weights mapped onto probe texels ``[F, h*w]``.
 
     Row f of the second holds solid angle x bilinear weights: integrating the bilinear interpolant
@@ -312,7 +312,7 @@ def lobe_kernel(cos: Tensor, alpha: Tensor) -> Tensor:
 @lru_cache(maxsize=32)
 def _level_operator_cpu(h: int, w: int, hl: int, wl: int, alpha: float) -> Tensor:
     """``[hl*wl, h*w]``: the GGX lobe of ``alpha`` (n = v = r) at the centres of an ``hl x wl`` level."""
-    d, weights = _fine_grid(h, w)
+    d, weights = fine_grid(h, w)
     r = pano.directions(hl, wl, dtype=torch.float64).reshape(3, -1).T
     op = lobe_kernel(r @ d.T, torch.tensor(alpha, dtype=torch.float64)) @ weights
     return op / op.sum(-1, keepdim=True)
@@ -321,7 +321,7 @@ def _level_operator_cpu(h: int, w: int, hl: int, wl: int, alpha: float) -> Tenso
 @lru_cache(maxsize=8)
 def _sh_operator_cpu(h: int, w: int) -> Tensor:
     """``[K, h*w]``: SH coefficients of irradiance / pi (cosine band weights folded in)."""
-    d, weights = _fine_grid(h, w)
+    d, weights = fine_grid(h, w)
     y = sh_basis(d)
     op = (y.T @ weights) * _cosine_band_weights(SH_LMAX)[:, None]
     # normalise so that a constant probe gives exactly that constant
@@ -522,3 +522,12 @@ def prefiltered(env: Tensor, alphas: tuple[float, ...] = PREFILTER_ALPHAS,
         _cache.clear()
         _cache.update(key=key, env=env, value=Prefiltered(env, alphas, need))
     return _cache["value"]  # type: ignore[return-value]
+
+
+def clear_cache(operators: bool = False) -> None:
+    """Forget the cached :func:`prefiltered` levels (the next call prefilters again, e.g. to time it);
+    ``operators`` also forgets the stacked prefiltering matrices, which depend on the level sizes
+    (:data:`LEVEL_TEXELS_PER_ALPHA`) without being keyed by them."""
+    _cache.clear()
+    if operators:
+        _stacked_operator_cpu.cache_clear()

@@ -106,7 +106,8 @@ def _concentration(a: Tensor, b: Tensor, mask: Tensor) -> dict:
     m = mask.to(a.dtype).expand_as(a)
     diff = ((a - b).abs() * m).sum(0).flatten()
     top = diff.topk(max(1, diff.numel() // 100)).values.sum()
-    pool = lambda x: F.avg_pool2d((x * m)[None], 8)[0]  # noqa: E731
+    def pool(x):
+        return F.avg_pool2d((x * m)[None], 8)[0]
     return {"top1_share": float(top / diff.sum().clamp(min=1e-30)),
             "lowpass8": rel_l1(pool(a), pool(b))}
 
@@ -121,14 +122,17 @@ def noise_breakdown(seed: int, index: int, settings: TraceSettings, device=None)
     from phyir.synth.tracer import build_lightmap, render_camera, render_probes
 
     sc = generate_room(np.random.default_rng([seed, index])).build(device)
-    gen = lambda s: torch.Generator(device=sc.device).manual_seed(s)  # noqa: E731
+    def gen(s):
+        return torch.Generator(device=sc.device).manual_seed(s)
     lm1, lm2 = build_lightmap(sc, settings, gen(1)), build_lightmap(sc, settings, gen(2))
     H, W = settings.size
-    img = lambda lm, s: render_camera(sc, lm, settings, s, gen(s))  # noqa: E731
+    def img(lm, s):
+        return render_camera(sc, lm, settings, s, gen(s))
     a, g = img(lm1, 1)
     b, _ = img(lm1, 2)
     c, _ = img(lm2, 1)
-    chw = lambda x: x.reshape(H, W, 3).permute(2, 0, 1)  # noqa: E731
+    def chw(x):
+        return x.reshape(H, W, 3).permute(2, 0, 1)
     a, b, c = chw(a), chw(b), chw(c)
     nonem = (g["emission"] < 0.5).reshape(1, H, W)
     kinds = sc.lights.kind.tolist()

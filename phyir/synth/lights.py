@@ -107,7 +107,8 @@ class Lights:
             else:
                 raise ValueError("boxes cannot be emitters")
         # sky
-        f = lambda a: torch.tensor(np.asarray(a, dtype=np.float32), device=dev)  # noqa: E731
+        def f(a):
+            return torch.tensor(np.asarray(a, dtype=np.float32), device=dev)
         if sky is None:
             sky = Sky(np.zeros(3), np.zeros(3), np.zeros(3))
         L.zenith, L.horizon, L.ground = f(sky.zenith), f(sky.horizon), f(sky.ground)
@@ -328,7 +329,8 @@ def _rect_frame(x, c, ex, ey, n, h):
     """Spherical-rectangle set-up (Urena et al. 2013) of one-sided quads seen from ``x``, in float64:
     the rectangle's corner coordinates (x0, x1, y0, y1, z0 < 0) in the frame (ex, ey, -n) at ``x``,
     its solid angle ``S`` (0 from behind the emitting side) and the constants b0, b1, k."""
-    f = lambda t: t.double()  # noqa: E731
+    def f(t):
+        return t.double()
     x, c, ex, ey, n, h = map(f, (x, c, ex, ey, n, h))
     d = c - x
     z0 = (d * n).sum(1)  # < 0 on the emitting side (n points into the room)
@@ -349,7 +351,8 @@ def _sph_rect(x0, x1, y0, y1, z):
     n2 = torch.stack((torch.zeros_like(z), -z, y1), 1)
     n3 = torch.stack((z, torch.zeros_like(z), -x0), 1)
     n0, n1, n2, n3 = (v / v.norm(dim=1, keepdim=True) for v in (n0, n1, n2, n3))
-    ac = lambda a, b: torch.acos((-(a * b).sum(1)).clamp(-1, 1))  # noqa: E731
+    def ac(a, b):
+        return torch.acos((-(a * b).sum(1)).clamp(-1, 1))
     g0, g1, g2, g3 = ac(n0, n1), ac(n1, n2), ac(n2, n3), ac(n3, n0)
     k = 2 * math.pi - g2 - g3
     S = (g0 + g1 - k).clamp(min=0)

@@ -43,7 +43,8 @@ class MaterialTable:
 
     @staticmethod
     def from_list(mats: list[Material], device=None) -> MaterialTable:
-        f = lambda x: torch.tensor(x, dtype=torch.float32, device=device)  # noqa: E731
+        def f(x):
+            return torch.tensor(x, dtype=torch.float32, device=device)
         return MaterialTable(
             kind=torch.tensor([m.kind for m in mats], dtype=torch.long, device=device),
             c1=f([m.c1 for m in mats]), c2=f([m.c2 for m in mats]), scale=f([m.scale for m in mats]),

@@ -14,14 +14,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from phyir.color import to_srgb8
 from phyir.pano import resize_area
-
-
-def tonemap(x: torch.Tensor, exposure: float = 1.0) -> np.ndarray:
-    """Linear HDR ``[3,H,W]`` -> sRGB-ish uint8 ``[H,W,3]`` (Reinhard, gamma 2.2)."""
-    y = (x.clamp(min=0) * exposure).permute(1, 2, 0).numpy()
-    y = y / (1 + y) * 1.6
-    return (np.clip(y, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
 
 
 def _gray(x: torch.Tensor, lo: float, hi: float) -> np.ndarray:
@@ -33,17 +27,18 @@ def scene_row(scene, height: int = 64) -> np.ndarray:
     """One contact-sheet row: image, depth, normal, base colour, roughness, metalness, 3 probes."""
     H, W = scene.size
     size = (height, 2 * height)
-    r = lambda t: resize_area(t, *size)  # noqa: E731
+    def r(t):
+        return resize_area(t, *size)
     nonem = scene.masks["emission"] < 0.5
     k = 0.5 / max(float(scene.image.mean(0)[nonem[0]].median()), 1e-6) if bool(nonem.any()) else 1.0
-    tiles = [tonemap(r(scene.image), k), _gray(r(scene.depth), 0, float(scene.depth.max())),
+    tiles = [to_srgb8(r(scene.image), k), _gray(r(scene.depth), 0, float(scene.depth.max())),
              ((r(scene.normal).permute(1, 2, 0).numpy() * 0.5 + 0.5).clip(0, 1) * 255).astype(np.uint8),
              (r(scene.albedo).clamp(0, 1).permute(1, 2, 0).numpy() ** (1 / 2.2) * 255).astype(np.uint8),
              _gray(r(scene.roughness), 0, 1), _gray(r(scene.metallic), 0, 1)]
     if scene.probes is not None:
         Hp, Wp = scene.probe_grid
         for b in (Wp // 8, Wp // 2, 5 * Wp // 8):
-            tiles.append(tonemap(resize_area(scene.probes[Hp // 2 + Hp // 8, b], height // 2, height), k))
+            tiles.append(to_srgb8(resize_area(scene.probes[Hp // 2 + Hp // 8, b], height // 2, height), k))
     row = []
     for t in tiles:
         if t.shape[0] < height:  # probes: half height, pad below
@@ -102,7 +97,8 @@ def statistics(paths: list[Path]) -> dict:
                     by_kind[name].append(v / med)
     n = len(paths)
     hist = {str(k): light_counts.count(k) for k in sorted(set(light_counts))}
-    q = lambda v: [float(np.percentile(v, x)) for x in (0, 50, 100)] if v else []  # noqa: E731
+    def q(v):
+        return [float(np.percentile(v, x)) for x in (0, 50, 100)] if v else []
     return {"scenes": n, "light_sources_histogram": hist, "sun_share": sum(suns) / max(n, 1),
             "metal_pixel_fraction_mean": float(np.mean(metal)),
             "scenes_with_metal": sum(m > 0 for m in metal),

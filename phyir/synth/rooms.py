@@ -80,13 +80,16 @@ class Room:
         """Tensors in the camera frame for the tracer."""
         R = self.camera_matrix()
         cam = np.asarray(self.camera, dtype=np.float64)
-        tr = lambda p: R @ (np.asarray(p, dtype=np.float64) - cam)  # noqa: E731
-        rot = lambda v: R @ np.asarray(v, dtype=np.float64)  # noqa: E731
+        def tr(p):
+            return R @ (np.asarray(p, dtype=np.float64) - cam)
+        def rot(v):
+            return R @ np.asarray(v, dtype=np.float64)
         quads, boxes, cyls, sphs = [], [], [], []
         for i, p in enumerate(self.prims):
             {G.QUAD: quads, G.BOX: boxes, G.CYL: cyls, G.SPH: sphs}[p.kind].append((i, p))
         order = [i for i, _ in quads + boxes + cyls + sphs]  # room prim index -> global order
-        f = lambda x: torch.tensor(np.asarray(x, dtype=np.float32).reshape(-1))  # noqa: E731
+        def f(x):
+            return torch.tensor(np.asarray(x, dtype=np.float32).reshape(-1))
 
         def mat3(rows):
             return torch.tensor(np.asarray(rows, dtype=np.float32).reshape(-1, 3))
@@ -520,7 +523,8 @@ class _Builder:
         n_lamps = int(rng.integers(0, min(2, rest) + 1))
         n_panels = rest - n_lamps
         body = pal.emitter_body()
-        tint = lambda: _light_colour(rng)  # noqa: E731
+        def tint():
+            return _light_colour(rng)
         made_panels = 0
         for _ in range(n_panels * 20):
             if made_panels == n_panels:

@@ -434,7 +434,8 @@ def render_camera(sc, lm: LightMap, st: TraceSettings, seed: int, gen: torch.Gen
         # dimensions (K=1: dimensions 0-2 of u), consecutive points to one camera sample
         u_l = S.pixel_samples("sobol", len(m), spp * K, 3, seed, dev, shifts=shifts[m, :3])
         u_l = u_l.reshape(len(m), spp, K, 3)
-        rep = lambda x: x.repeat_interleave(spp, 0)  # noqa: E731
+        def rep(x):
+            return x.repeat_interleave(spp, 0)
         hr = Hits(*(rep(getattr(hb, f)) for f in ("p", "n", "face", "st", "pid", "base", "rough", "metal")))
         vr = rep(v)
         ur = u.reshape(-1, 5)
@@ -657,7 +658,8 @@ def trace(sc, settings: TraceSettings | None = None, seed: int = 0) -> TraceResu
         t0, c0 = time.perf_counter(), time.process_time()
         probes = render_probes(sc, lm, st, gen)
         stats["probes_s"], stats["probes_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
-    img = lambda x, c: x.reshape(H, W, c).permute(2, 0, 1).contiguous()  # noqa: E731
+    def img(x, c):
+        return x.reshape(H, W, c).permute(2, 0, 1).contiguous()
     return TraceResult(image=img(image, 3), depth=img(g["depth"], 1), normal=img(g["normal"], 3),
                        albedo=img(g["albedo"], 3), roughness=img(g["roughness"], 1),
                        metallic=img(g["metallic"], 1), emission=img(g["emission"], 1), probes=probes,

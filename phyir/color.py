@@ -1,0 +1,57 @@
+"""Colour: luminance, exposure normalisation and the display tone curve — one definition each.
+
+* :data:`LUMA` / :func:`luminance`: Rec. 709 luminance of linear RGB (the weights of every luminance in
+  the project, GLSL's ``colour.glsl`` included).
+* :func:`exposure_scale`: the factor that brings an image's median luminance to :data:`KEY` — the
+  input normalisation of training and inference alike (docs/training.md).
+* :func:`aces` (Narkowicz's ACES fit) and :func:`to_srgb8`: what a display shows of linear radiance,
+  the same curve as the viewer's ``colour.glsl``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+LUMA = (0.2126, 0.7152, 0.0722)
+KEY = 0.25  # normalised median luminance
+SCALE_RANGE = (1e-6, 1e6)
+
+
+def luminance(rgb: Tensor, dim: int = -3) -> Tensor:
+    """Luminance of linear RGB along ``dim`` (channels; default -3: [...,3,H,W] -> [...,H,W])."""
+    w = torch.tensor(LUMA, dtype=rgb.dtype, device=rgb.device)
+    shape = [1] * rgb.dim()
+    shape[dim] = 3
+    return (rgb * w.view(shape)).sum(dim)
+
+
+def exposure_scale(image: Tensor) -> Tensor:
+    """Per-image factor bringing the median luminance to ``KEY``: [B,3,H,W] -> [B] (or [3,H,W] -> []).
+
+    The median ignores lamps and windows (a few bright pixels) and dark corners alike.  An image whose
+    median is zero (mostly black) falls back to its mean; an all-black image gets scale 1.
+    """
+    L = luminance(torch.nan_to_num(image.float(), nan=0.0, posinf=0.0).clamp(min=0)).flatten(-2)
+    med = L.median(dim=-1).values
+    stat = torch.where(med > 0, med, L.mean(-1))
+    scale = torch.where(stat > 0, KEY / stat.clamp(min=1e-30), torch.ones_like(stat))
+    return scale.clamp(*SCALE_RANGE)
+
+
+def aces(x):
+    """Narkowicz's fit of the ACES filmic tone curve, [0, inf) -> [0, 1); a tensor or a numpy array."""
+    x = x.clip(max=1e4)  # the curve is 1 long before; x^2 of x > 1e19 would overflow to inf/inf = NaN
+    return ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clip(0, 1)
+
+
+def to_srgb8(x: Tensor | np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    """Linear radiance ``[3,H,W]`` tensor or ``[H,W,3]`` array -> display uint8 ``[H,W,3]``:
+    ``exposure`` x ACES, sRGB-encoded, rounded."""
+    from phyir.io.ldr import linear_to_srgb
+
+    if isinstance(x, Tensor):
+        x = x.detach().float().cpu().permute(1, 2, 0).numpy()
+    y = linear_to_srgb(aces(np.maximum(x, 0) * exposure))
+    return (np.clip(y, 0, 1) * 255 + 0.5).astype(np.uint8)

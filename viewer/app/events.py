@@ -1,0 +1,95 @@
+"""The worker's events applied to the App's state (on the GL thread, from ``App.poll``): each
+event type has its handler in :data:`HANDLERS`."""
+
+from __future__ import annotations
+
+import time
+
+from phyir.scene import PanoScene
+from viewer.worker import Done, Failed, GroundTruth, LayersReady, Loaded, Note, Progress, Rendered
+
+
+class WorkerEvents:
+    """Part of :class:`viewer.app.App`: what each worker event changes."""
+
+    def poll(self) -> bool:
+        """Apply the worker's events; True if anything changed."""
+        events = self.worker.poll()
+        for event in events:
+            HANDLERS[type(event)](self, event)
+        return bool(events)
+
+    def _on_loaded(self, loaded: Loaded) -> None:
+        self.scene = loaded.scene
+        self.path, self.name = loaded.path, loaded.name
+        self.arrays = dict(loaded.arrays)
+        self._queue_upload("pred", loaded.arrays)
+        self._auto_ranges(loaded.ranges)
+        for text in loaded.notes:
+            self.note("warning", text)
+        H, W = self.scene.size
+        self.note("info", f"opened {loaded.name} ({W}x{H}; layers: {', '.join(loaded.arrays)})")
+        self.timings["load"] = time.perf_counter() - self._job_start
+        if self.recent is not None and loaded.path is not None:
+            self.recent.add(loaded.path)
+        self._refresh_pins()
+        self._title()
+
+    def _on_progress(self, event: Progress) -> None:
+        old = self.progress or (None, "")
+        self.progress = (event.fraction if event.fraction is not None else old[0], event.text or old[1])
+
+    def _on_layers(self, event: LayersReady) -> None:
+        arrays, seconds = event.arrays, event.seconds
+        self.scene = event.scene
+        self.arrays.update(arrays)
+        self._queue_upload("pred", arrays)
+        self._auto_ranges(event.ranges)
+        self.timings["model"] = seconds
+        extra = " (G: prediction / ground truth)" if self.gt is not None else ""
+        self.note("info", f"model: {', '.join(arrays)} in {seconds:.1f} s{extra}")
+        self._refresh_pins()
+
+    def _on_gt(self, event: GroundTruth) -> None:
+        gt = event.scene
+        # the file's layers are the ground truth now; the prediction starts from the image only
+        for name in list(self.arrays):
+            if name != "image":
+                del self.arrays[name]
+                tex = self._textures.pop(("pred", name), None)
+                if tex is not None:
+                    tex.release()
+        self.scene = PanoScene(image=gt.image, meta=dict(gt.meta))
+        self._set_gt(gt, event.arrays)
+        self.show_gt = True  # the file's layers, at once; G switches to the prediction when it is in
+        self.note("info", "the file's layers are ground truth: predicting all layers to compare (G switches)")
+        self._refresh_pins()
+
+    def _on_rendered(self, event: Rendered) -> None:
+        if event.gt:
+            self.timings["render_gt"] = event.seconds
+            self.gt_arrays.update(event.arrays)
+            self._queue_upload("gt", event.arrays)
+        else:
+            self.timings["render"] = event.seconds
+            self.arrays.update(event.arrays)
+            self._queue_upload("pred", event.arrays)
+
+    def _on_note(self, event: Note) -> None:
+        self.note("info", event.text)
+
+    def _on_failed(self, event: Failed) -> None:
+        self.note("error", event.text if event.stage == "loading" else f"{event.stage} failed: {event.text}")
+        self.busy, self.progress = False, None
+        self.timings["job"] = time.perf_counter() - self._job_start
+
+    def _on_done(self, _event: Done) -> None:
+        self.busy, self.progress = False, None
+        self.timings["job"] = time.perf_counter() - self._job_start
+        self._refresh_pins()
+
+
+HANDLERS = {Loaded: WorkerEvents._on_loaded, Progress: WorkerEvents._on_progress,
+            LayersReady: WorkerEvents._on_layers, GroundTruth: WorkerEvents._on_gt,
+            Rendered: WorkerEvents._on_rendered, Note: WorkerEvents._on_note, Failed: WorkerEvents._on_failed,
+            Done: WorkerEvents._on_done}

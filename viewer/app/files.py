@@ -1,0 +1,99 @@
+"""The App's file I/O: opening a file or scene (read in the worker), ground truth to compare with,
+cancelling, dropped files and screenshots."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from phyir.scene import PanoScene
+from viewer.app.common import gl_current
+from viewer.layers import auto_ranges, scene_arrays
+
+
+class FileActions:
+    """Part of :class:`viewer.app.App`: opening and saving."""
+
+    def on_drop(self, paths: list[str]) -> None:
+        """Files dropped on the window: open the first."""
+        if paths:
+            self.open(paths[0])
+            self.request_redraw()
+
+    # -- opening ------------------------------------------------------------------------------
+    @gl_current
+    def open(self, source: str | os.PathLike | PanoScene, *, gt: PanoScene | None = None,
+             name: str | None = None, compare: bool | None = None) -> None:
+        """Open a panorama/scene file or a PanoScene; cancels a running job.  The file is read in the
+        worker; its layers appear when read, the model's when computed.  ``gt``: a ground-truth
+        scene to compare with; ``compare``: treat the file's own layers as ground truth and predict
+        all layers (default: only for complete synthetic scenes)."""
+        self.worker.cancel()
+        self._clear()
+        self.error = None
+        if isinstance(source, PanoScene):
+            self.name = name or source.meta.get("name", "scene")
+            self.path = None
+        else:
+            self.path = os.fspath(source)
+            self.name = name or Path(self.path).name
+        if gt is not None:
+            self._set_gt(gt.detach().cpu().float() if not gt.batched else gt[0])
+        self.progress = (None, f"opening {self.name}")
+        self.busy = True
+        self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
+        self._job_start = time.perf_counter()
+        self.worker.start(source, name=name, compare=compare, run_model=self.run_model)
+        self._title()
+
+    def _clear(self) -> None:
+        for tex in self._textures.values():
+            tex.release()
+        self._textures.clear()
+        self._pending.clear()
+        for pin in self.pins:
+            self._release_pin(pin)
+        self.pins.clear()
+        self.scene, self.arrays, self.gt, self.gt_arrays = None, {}, None, {}
+        self.show_gt = False
+        self.hover = None
+        self.timings = {}
+        self._fit_pending = True
+
+    def _set_gt(self, gt: PanoScene, arrays: dict[str, np.ndarray] | None = None) -> None:
+        """Ground truth: a scene given to ``open`` (arrays made here) or the file's layers in compare
+        mode (arrays made, and their ranges applied, when the file loaded)."""
+        if arrays is None:
+            arrays = scene_arrays(gt)
+            self.gt = None  # so that its ranges apply
+            self._auto_ranges(auto_ranges(arrays))
+        self.gt, self.gt_arrays = gt, dict(arrays)
+        self._queue_upload("gt", self.gt_arrays)
+
+    def cancel(self) -> None:
+        """Stop the running job (keeps the layers that arrived)."""
+        if self.busy:
+            self.worker.cancel()
+            self.busy = False
+            self.progress = None
+            self.note("info", "cancelled")
+
+    @gl_current
+    def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:
+        """Draw a frame of the current state and return it as uint8 RGB (rows from the top);
+        written atomically as PNG to ``path`` if given."""
+        self.frame(capture=True)
+        while self._last_uploaded or self._pending:  # the view lags uploads by a frame
+            self.frame(capture=True)
+        img = self.last_capture
+        if path is not None:
+            from PIL import Image
+
+            from phyir.io import atomic_write
+
+            with atomic_write(path) as tmp:
+                Image.fromarray(img).save(tmp, format="PNG")
+        return img
