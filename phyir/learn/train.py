@@ -26,181 +26,34 @@ import dataclasses
 import functools
 import json
 import math
-import os
-import random
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 
 from phyir.errors import InputError, PhyIRError
-from phyir.learn.losses import STAGE_WEIGHTS, LossOptions, LossWeights, pick_output, total_loss
+from phyir.learn.checkpoints import (
+    CKPT_FORMAT,
+    jsonable,
+    load_checkpoint,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
+from phyir.learn.config import CHECKPOINT, EXPORT, STAGE_ORDER, STAGES, Stage, TrainConfig, load_config_file
+from phyir.learn.distributed import Dist, gather, setup_dist
+from phyir.learn.logs import log_step, log_val, progress_bar, tensorboard, truncate_log
+from phyir.learn.losses import LossOptions, LossWeights, pick_output, total_loss
 from phyir.nets.model import ModelConfig, PhyIRModel
 from phyir.scene import PanoScene
 
-STAGE_ORDER = ("gm", "light", "joint", "gs")
-CHECKPOINT = "checkpoint.pt"
-EXPORT = "model.safetensors"
-CKPT_FORMAT = "phyir-checkpoint-1"
-
-
-@dataclass(frozen=True)
-class Stage:
-    epochs: int
-    lr: float
-    batch_size: int
-    train: tuple[str, ...]  # sub-networks optimised; the others are frozen
-    light: bool  # run LNet
-    refine: bool  # run GSNet (its outputs feed the material terms)
-
-
-STAGES: dict[str, Stage] = {  # supplement B.1
-    "gm": Stage(120, 1e-4, 8, ("gmnet",), light=False, refine=False),
-    "light": Stage(90, 1e-4, 4, ("lnet",), light=True, refine=False),
-    "joint": Stage(10, 1e-5, 4, ("gmnet", "lnet"), light=True, refine=False),
-    "gs": Stage(80, 5e-4, 16, ("gsnet",), light=False, refine=True),
-}
-
-
-@dataclass
-class TrainConfig:
-    stage: str = "gm"
-    data: str | None = None  # dataset folder (scene files + manifest)
-    out: str = "runs/phyir"
-    model: str = "lite"  # architecture size (ignored when resuming or initialising from weights)
-    init: str | None = None  # weights to start from; None = previous stage's export; "scratch"
-    epochs: int | None = None  # None = the stage's default (supplement B.1)
-    lr: float | None = None
-    batch_size: int | None = None  # global batch over all processes
-    size: tuple[int, int] | None = (128, 256)  # training resolution; None = the files' own
-    probe_grid: tuple[int, int] | None = (16, 32)  # ground-truth probes merged to this grid; None = as stored
-    schedule: str = "constant"  # "constant" (paper) or "cosine"
-    grad_clip: float = 10.0
-    seed: int = 0
-    augment: bool = True
-    workers: int = 0
-    device: str = "auto"  # auto | cpu | cuda
-    amp: bool = True  # mixed precision (CUDA only)
-    max_minutes: float | None = None  # stop (with a checkpoint) after this much wall time
-    max_steps: int | None = None  # stop (with a checkpoint) at this global step
-    ckpt_every: int = 200  # steps; a checkpoint is also written every epoch and on stop
-    log_every: int = 10
-    val: bool = True
-    cache: bool = True  # keep resampled scenes in <out>/cache/ (float16) for the next epochs
-    limit_train: int | None = None
-    limit_val: int | None = None
-    progress: bool = True
-    loss: dict = field(default_factory=dict)  # LossOptions overrides
-    # fine-tuning part of a stage's sub-networks: parameter-name prefixes that train (empty: all of
-    # the stage's sub-networks), and modules re-initialised first (e.g. a dead output head)
-    train_only: tuple[str, ...] = ()
-    reinit: tuple[str, ...] = ()
-    weights: dict = field(default_factory=dict)  # LossWeights overrides
-
-    @staticmethod
-    def from_dict(d: dict) -> TrainConfig:
-        known = {f.name for f in dataclasses.fields(TrainConfig)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise PhyIRError(f"unknown training option(s): {', '.join(bad)}")
-        d = dict(d)
-        for k in ("size", "probe_grid", "train_only", "reinit"):
-            if d.get(k) is not None:
-                d[k] = tuple(d[k])
-        return TrainConfig(**d)
-
-    def resolved(self) -> tuple[Stage, LossWeights, LossOptions]:
-        if self.stage not in STAGES:
-            raise PhyIRError(f"unknown stage {self.stage!r} (choose from {', '.join(STAGE_ORDER)})")
-        st = STAGES[self.stage]
-        st = dataclasses.replace(st, epochs=self.epochs or st.epochs, lr=self.lr or st.lr,
-                                 batch_size=self.batch_size or st.batch_size)
-        try:
-            w = dataclasses.replace(STAGE_WEIGHTS[self.stage], **self.weights)
-            lo = dict(self.loss)
-            if "render_size" in lo:
-                lo["render_size"] = tuple(lo["render_size"])
-            opts = dataclasses.replace(LossOptions(), **lo)
-        except TypeError as e:
-            raise PhyIRError(f"bad loss option: {e}") from None
-        if opts.metallic_loss not in ("l2", "bce"):
-            raise PhyIRError(f"bad loss option: metallic_loss must be 'l2' or 'bce', "
-                             f"not {opts.metallic_loss!r}")
-        return st, w, opts
-
-
-def load_config_file(path: str | os.PathLike) -> dict:
-    """Options from a JSON or TOML file (keys = :class:`TrainConfig` fields)."""
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as e:
-        raise InputError(p, f"cannot read config ({e.strerror})") from None
-    try:
-        if p.suffix == ".toml":
-            import tomllib
-
-            return tomllib.loads(text)
-        return json.loads(text)
-    except Exception as e:
-        raise InputError(p, f"not a valid {p.suffix.lstrip('.') or 'JSON'} config ({e})") from None
-
-
-# ---------------------------------------------------------------------------------------------
-# distributed helpers
-
-
-@dataclass
-class Dist:
-    rank: int = 0
-    world: int = 1
-    local_rank: int = 0
-    device: torch.device = torch.device("cpu")
-
-    @property
-    def main(self) -> bool:
-        return self.rank == 0
-
-    def all_mean(self, x: Tensor) -> Tensor:
-        if self.world > 1:
-            x = x.clone()
-            dist.all_reduce(x)
-            x /= self.world
-        return x
-
-    def any(self, flag: bool) -> bool:
-        if self.world == 1:
-            return flag
-        t = torch.tensor([float(flag)], device=self.device)
-        dist.all_reduce(t, op=dist.ReduceOp.MAX)
-        return bool(t.item())
-
-    def barrier(self) -> None:
-        if self.world > 1:
-            dist.barrier()
-
-
-def setup_dist(device: str) -> Dist:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    rank = int(os.environ.get("RANK", "0"))
-    local = int(os.environ.get("LOCAL_RANK", "0"))
-    cuda = torch.cuda.is_available() and device != "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        raise PhyIRError("--device cuda: no CUDA device is available")
-    dev = torch.device(f"cuda:{local}") if cuda else torch.device("cpu")
-    if cuda:
-        torch.cuda.set_device(dev)
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if cuda else "gloo")
-    if world > 1 and not cuda:  # share the cores between the processes of this machine
-        local_world = int(os.environ.get("LOCAL_WORLD_SIZE", world))
-        torch.set_num_threads(max(1, (os.cpu_count() or 1) // local_world))
-    return Dist(rank, world, local, dev)
-
+__all__ = ["STAGES", "STAGE_ORDER", "StageForward", "TrainConfig", "load_config_file", "make_datasets",
+           "train", "validate"]
 
 # ---------------------------------------------------------------------------------------------
 # data
@@ -261,47 +114,6 @@ def make_datasets(cfg: TrainConfig, need_probes: bool):
     if missing:
         raise InputError(train.files[0], f"training scenes lack layers {', '.join(missing)}")
     return train, val
-
-
-# ---------------------------------------------------------------------------------------------
-# checkpoints
-
-
-def _rng_state(device: torch.device) -> dict:
-    st = {"torch": torch.get_rng_state(), "python": random.getstate()}
-    if device.type == "cuda":
-        st["cuda"] = torch.cuda.get_rng_state(device)
-    return st
-
-
-def _set_rng_state(st: dict, device: torch.device) -> None:
-    torch.set_rng_state(st["torch"])
-    random.setstate(_tuplify(st["python"]))
-    if device.type == "cuda" and "cuda" in st:
-        torch.cuda.set_rng_state(st["cuda"], device)
-
-
-def _tuplify(x):
-    return tuple(_tuplify(v) for v in x) if isinstance(x, (list, tuple)) else x
-
-
-def save_checkpoint(path: Path, state: dict) -> None:
-    from phyir.io import atomic_write
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path) as tmp:
-        torch.save(state, tmp)
-
-
-def load_checkpoint(path: Path) -> dict:
-    """A checkpoint written by :func:`save_checkpoint` (restricted unpickler: tensors and plain data)."""
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise InputError(path, f"unreadable checkpoint ({str(e).strip().splitlines()[0]})") from None
-    if not isinstance(ck, dict) or ck.get("format") != CKPT_FORMAT:
-        raise InputError(path, "not a PhyIR training checkpoint")
-    return ck
 
 
 # ---------------------------------------------------------------------------------------------
@@ -399,19 +211,56 @@ def _fit_probe_layout(mcfg: ModelConfig, scene: PanoScene) -> ModelConfig:
     return dataclasses.replace(mcfg, probe_size=scene.probe_size, probe_block=block)
 
 
-def train(cfg: TrainConfig, datasets=None) -> dict:
-    """Run (or resume) one stage.  ``datasets`` = (train, val) overrides ``cfg.data`` (tests).
+@dataclass
+class _Run:
+    """One run of one stage: the model, its optimiser and where the loop stands."""
 
-    Returns a summary: ``status`` ("done" or "stopped"), ``step``, ``epoch``, ``losses`` (the global
-    mean loss of each step of this run), ``val`` (last validation metrics), ``checkpoint``.
-    """
+    cfg: TrainConfig
+    stage: Stage
+    weights: LossWeights
+    loss_opts: LossOptions
+    d: Dist
+    t_start: float
+    train_set: Any
+    val_set: Any
+    mcfg: ModelConfig
+    model: PhyIRModel
+    init_from: str | None
+    params: list
+    batches: EpochBatches
+    opt: Any = None
+    sched: Any = None
+    scaler: Any = None
+    amp_dtype: torch.dtype = torch.float16
+    use_amp: bool = False
+    net: nn.Module | None = None
+    writer: Any = None
+    epoch: int = 0
+    start: int = 0
+    step: int = 0
+    seconds_before: float = 0.0
+    skipped: int = 0
+    step_time: float = 0.0
+    losses: list[float] = field(default_factory=list)
+
+    @property
+    def stage_dir(self) -> Path:
+        return Path(self.cfg.out) / self.cfg.stage
+
+    @property
+    def ckpt_path(self) -> Path:
+        return self.stage_dir / CHECKPOINT
+
+    @property
+    def log_file(self) -> Path:
+        return self.stage_dir / "log.jsonl"
+
+
+def _build_run(cfg: TrainConfig, datasets, resume: dict | None) -> _Run:
+    """The model (architecture, starting weights, what trains) and its optimiser, not yet resumed."""
     stage, weights, loss_opts = cfg.resolved()
     d = setup_dist(cfg.device)
     t_start = time.monotonic()
-    stage_dir = Path(cfg.out) / cfg.stage
-    ckpt_path = stage_dir / CHECKPOINT
-    resume = load_checkpoint(ckpt_path) if ckpt_path.is_file() else None
-
     train_set, val_set = datasets if datasets is not None else make_datasets(cfg, stage.light)
 
     torch.manual_seed(cfg.seed)  # identical initialisation in every process
@@ -429,136 +278,171 @@ def train(cfg: TrainConfig, datasets=None) -> dict:
         _reinit(model, cfg.reinit)
     _restrict_training(model, cfg.train_only)
     params = [p for p in model.parameters() if p.requires_grad]
-
     batches = EpochBatches(len(train_set), stage.batch_size, d, cfg.seed)
+    run = _Run(cfg, stage, weights, loss_opts, d, t_start, train_set, val_set, mcfg, model, init_from,
+               params, batches)
+    run.opt = torch.optim.Adam(params, lr=stage.lr)
     total_steps = stage.epochs * batches.steps
-    opt = torch.optim.Adam(params, lr=stage.lr)
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(cfg.schedule, total_steps))
+    run.sched = torch.optim.lr_scheduler.LambdaLR(run.opt, _lr_lambda(cfg.schedule, total_steps))
     cuda = d.device.type == "cuda"
-    amp_dtype = torch.bfloat16 if cuda and torch.cuda.is_bf16_supported() else torch.float16
-    use_amp = cfg.amp and cuda
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
+    run.amp_dtype = torch.bfloat16 if cuda and torch.cuda.is_bf16_supported() else torch.float16
+    run.use_amp = cfg.amp and cuda
+    run.scaler = torch.amp.GradScaler("cuda", enabled=run.use_amp and run.amp_dtype == torch.float16)
+    return run
 
-    epoch, start, step, seconds_before = 0, 0, 0, 0.0
+
+def _restore(run: _Run, resume: dict | None) -> None:
+    """Resume from a checkpoint (state, position, RNG), or seed a fresh run; wrap for DDP."""
+    d = run.d
     if resume:
-        model.load_state_dict(resume["model"])
-        opt.load_state_dict(resume["optimizer"])
-        sched.load_state_dict(resume["scheduler"])
-        scaler.load_state_dict(resume["scaler"])
-        epoch, start, step = resume["epoch"], resume["batch"], resume["step"]
-        seconds_before = float(resume.get("seconds", 0.0))
+        run.model.load_state_dict(resume["model"])
+        run.opt.load_state_dict(resume["optimizer"])
+        run.sched.load_state_dict(resume["scheduler"])
+        run.scaler.load_state_dict(resume["scaler"])
+        run.epoch, run.start, run.step = resume["epoch"], resume["batch"], resume["step"]
+        run.seconds_before = float(resume.get("seconds", 0.0))
         rngs = resume["rng"]
-        _set_rng_state(rngs[d.rank] if d.rank < len(rngs) else rngs[0], d.device)
+        set_rng_state(rngs[d.rank] if d.rank < len(rngs) else rngs[0], d.device)
     else:
-        torch.manual_seed(cfg.seed * 7919 + 1 + d.rank)  # per-process stream (e.g. Monte Carlo render)
-
-    net = StageForward(model, stage)
+        torch.manual_seed(run.cfg.seed * 7919 + 1 + d.rank)  # per-process stream (e.g. Monte Carlo render)
+    run.net = StageForward(run.model, run.stage)
     if d.world > 1:
-        net = nn.parallel.DistributedDataParallel(net, device_ids=[d.local_rank] if cuda else None)
+        cuda = d.device.type == "cuda"
+        run.net = nn.parallel.DistributedDataParallel(run.net, device_ids=[d.local_rank] if cuda else None)
 
-    writer = None
-    log_file = stage_dir / "log.jsonl"
-    if d.main:
-        stage_dir.mkdir(parents=True, exist_ok=True)
-        _truncate_log(log_file, step)
-        _truncate_log(stage_dir / "val.jsonl", epoch, key="epoch")
-        writer = _tensorboard(stage_dir / "tb", step)
-        msg = f"resuming at epoch {epoch}, batch {start} (step {step})" if resume else \
-            f"starting from {init_from or 'random weights'}"
-        print(f"phyir train {cfg.stage}: {msg}; {len(train_set)} scenes, {batches.steps} steps/epoch, "
-              f"{stage.epochs} epochs, global batch {stage.batch_size} x {d.world} process(es), "
-              f"lr {stage.lr:g}, device {d.device}", file=sys.stderr, flush=True)
 
-    def checkpoint(ep: int, batch: int) -> None:
-        rngs = _gather(_rng_state(d.device), d)
+def _open_logs(run: _Run, resumed: bool) -> None:
+    if not run.d.main:
+        return
+    cfg, stage = run.cfg, run.stage
+    run.stage_dir.mkdir(parents=True, exist_ok=True)
+    truncate_log(run.log_file, run.step)
+    truncate_log(run.stage_dir / "val.jsonl", run.epoch, key="epoch")
+    run.writer = tensorboard(run.stage_dir / "tb", run.step)
+    msg = f"resuming at epoch {run.epoch}, batch {run.start} (step {run.step})" if resumed else \
+        f"starting from {run.init_from or 'random weights'}"
+    print(f"phyir train {cfg.stage}: {msg}; {len(run.train_set)} scenes, {run.batches.steps} steps/epoch, "
+          f"{stage.epochs} epochs, global batch {stage.batch_size} x {run.d.world} process(es), "
+          f"lr {stage.lr:g}, device {run.d.device}", file=sys.stderr, flush=True)
+
+
+def _checkpoint(run: _Run, epoch: int, batch: int) -> None:
+    rngs = gather(rng_state(run.d.device), run.d)
+    if run.d.main:
+        save_checkpoint(run.ckpt_path, {
+            "format": CKPT_FORMAT, "config": jsonable(dataclasses.asdict(run.cfg)),
+            "model_config": run.mcfg.to_dict(), "model": run.model.state_dict(),
+            "optimizer": run.opt.state_dict(), "scheduler": run.sched.state_dict(),
+            "scaler": run.scaler.state_dict(), "rng": rngs, "epoch": epoch, "batch": batch,
+            "step": run.step, "seconds": run.seconds_before + time.monotonic() - run.t_start})
+    run.d.barrier()
+
+
+def _train_step(run: _Run, scene: PanoScene) -> Tensor:
+    """One optimiser step (skipped on a non-finite loss); returns the global mean [loss, *terms]."""
+    d = run.d
+    scene = scene.to(d.device)
+    with torch.autocast(d.device.type, dtype=run.amp_dtype, enabled=run.use_amp):
+        pred = run.net(scene.image, scene.probe_grid)
+    pred = {k: v.float() for k, v in pred.items()}
+    loss, terms = total_loss(pred, scene, run.weights, run.loss_opts, refined=run.stage.refine)
+    if not d.any(not bool(torch.isfinite(loss))):
+        run.opt.zero_grad(set_to_none=True)
+        run.scaler.scale(loss).backward()
+        if run.cfg.grad_clip:
+            run.scaler.unscale_(run.opt)
+            nn.utils.clip_grad_norm_(run.params, run.cfg.grad_clip)
+        run.scaler.step(run.opt)
+        run.scaler.update()
+    else:
+        run.skipped += 1
         if d.main:
-            save_checkpoint(ckpt_path, {
-                "format": CKPT_FORMAT, "config": _jsonable(dataclasses.asdict(cfg)),
-                "model_config": mcfg.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(),
-                "scheduler": sched.state_dict(), "scaler": scaler.state_dict(), "rng": rngs,
-                "epoch": ep, "batch": batch, "step": step,
-                "seconds": seconds_before + time.monotonic() - t_start})
-        d.barrier()
+            print(f"phyir train: non-finite loss at step {run.step}, batch skipped", file=sys.stderr)
+        if run.skipped > 20:
+            raise PhyIRError("training diverged: more than 20 batches with a non-finite loss")
+    run.sched.step()
+    run.step += 1
+    mean = d.all_mean(torch.stack([loss.detach(), *terms.values()]).float())
+    if d.main:
+        log_step(run.log_file, run.writer, run.step, run.epoch, float(mean[0]),
+                 dict(zip(terms, mean[1:].tolist())), run.sched.get_last_lr()[0], run.cfg.log_every)
+    return mean
 
-    losses: list[float] = []
+
+def _train_epoch(run: _Run) -> tuple[bool, bool]:
+    """The rest of the current epoch; returns (stopped inside it, stop requested)."""
+    cfg, d, batches = run.cfg, run.d, run.batches
+    run.train_set.set_epoch(run.epoch)
+    loader = _loader(run.train_set, batches.batches(run.epoch, run.start), cfg.workers,
+                     cfg.seed * 100_003 + run.epoch)
+    desc = f"{cfg.stage} epoch {run.epoch + 1}/{run.stage.epochs}"
+    bar = progress_bar(cfg, d, batches.steps, run.start, desc)
+    stop = stopped = False
+    for b, scene in enumerate(loader, start=run.start):
+        t0 = time.monotonic()
+        mean = _train_step(run, scene)
+        run.losses.append(float(mean[0]))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(mean[0]):.4g}")
+        dt = time.monotonic() - t0
+        run.step_time = 0.8 * run.step_time + 0.2 * dt if run.step_time else dt
+        done_epoch = b + 1 == batches.steps
+        over = cfg.max_minutes is not None and \
+            time.monotonic() - run.t_start + run.step_time > 60 * cfg.max_minutes
+        stop = d.any((cfg.max_steps is not None and run.step >= cfg.max_steps) or over)
+        if stop and not done_epoch:
+            _checkpoint(run, run.epoch, b + 1)
+            stopped = True
+            break
+        if run.step % cfg.ckpt_every == 0 and not done_epoch:
+            _checkpoint(run, run.epoch, b + 1)
+    if bar is not None:
+        bar.close()
+    return stopped, stop
+
+
+def train(cfg: TrainConfig, datasets=None) -> dict:
+    """Run (or resume) one stage.  ``datasets`` = (train, val) overrides ``cfg.data`` (tests).
+
+    Returns a summary: ``status`` ("done" or "stopped"), ``step``, ``epoch``, ``losses`` (the global
+    mean loss of each step of this run), ``val`` (last validation metrics), ``checkpoint``.
+    """
+    ckpt_path = Path(cfg.out) / cfg.stage / CHECKPOINT
+    resume = load_checkpoint(ckpt_path) if ckpt_path.is_file() else None
+    run = _build_run(cfg, datasets, resume)
+    _restore(run, resume)
+    _open_logs(run, resume is not None)
+    stage, d = run.stage, run.d
     val_metrics: dict = {}
     status = "done"
-    already_done = epoch >= stage.epochs and (stage_dir / EXPORT).is_file()
-    skipped, step_time, stop = 0, 0.0, False
-    while epoch < stage.epochs:
-        train_set.set_epoch(epoch)
-        loader = _loader(train_set, batches.batches(epoch, start), cfg.workers, cfg.seed * 100_003 + epoch)
-        bar = _progress(cfg, d, batches.steps, start, f"{cfg.stage} epoch {epoch + 1}/{stage.epochs}")
-        for b, scene in enumerate(loader, start=start):
-            t0 = time.monotonic()
-            scene = scene.to(d.device)
-            grid = scene.probe_grid
-            with torch.autocast(d.device.type, dtype=amp_dtype, enabled=use_amp):
-                pred = net(scene.image, grid)
-            pred = {k: v.float() for k, v in pred.items()}
-            loss, terms = total_loss(pred, scene, weights, loss_opts, refined=stage.refine)
-            if not d.any(not bool(torch.isfinite(loss))):
-                opt.zero_grad(set_to_none=True)
-                scaler.scale(loss).backward()
-                if cfg.grad_clip:
-                    scaler.unscale_(opt)
-                    nn.utils.clip_grad_norm_(params, cfg.grad_clip)
-                scaler.step(opt)
-                scaler.update()
-            else:
-                skipped += 1
-                if d.main:
-                    print(f"phyir train: non-finite loss at step {step}, batch skipped", file=sys.stderr)
-                if skipped > 20:
-                    raise PhyIRError("training diverged: more than 20 batches with a non-finite loss")
-            sched.step()
-            step += 1
-            mean = d.all_mean(torch.stack([loss.detach(), *terms.values()]).float())
-            losses.append(float(mean[0]))
-            if d.main:
-                _log_step(log_file, writer, step, epoch, float(mean[0]), dict(zip(terms, mean[1:].tolist())),
-                          sched.get_last_lr()[0], cfg.log_every)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{float(mean[0]):.4g}")
-            dt = time.monotonic() - t0
-            step_time = 0.8 * step_time + 0.2 * dt if step_time else dt
-            done_epoch = b + 1 == batches.steps
-            over = cfg.max_minutes is not None and \
-                time.monotonic() - t_start + step_time > 60 * cfg.max_minutes
-            stop = d.any((cfg.max_steps is not None and step >= cfg.max_steps) or over)
-            if stop and not done_epoch:
-                checkpoint(epoch, b + 1)
-                status = "stopped"
-                break
-            if step % cfg.ckpt_every == 0 and not done_epoch:
-                checkpoint(epoch, b + 1)
-        if bar is not None:
-            bar.close()
-        if status == "stopped":
-            break
-        if val_set is not None:
-            val_metrics = validate(model, stage, val_set, d)
-            if d.main:
-                _log_val(stage_dir / "val.jsonl", writer, epoch + 1, step, val_metrics)
-        epoch, start = epoch + 1, 0
-        checkpoint(epoch, 0)
-        if stop and epoch < stage.epochs:
+    already_done = run.epoch >= stage.epochs and (run.stage_dir / EXPORT).is_file()
+    while run.epoch < stage.epochs:
+        stopped, stop = _train_epoch(run)
+        if stopped:
             status = "stopped"
             break
-
+        if run.val_set is not None:
+            val_metrics = validate(run.model, stage, run.val_set, d)
+            if d.main:
+                log_val(run.stage_dir / "val.jsonl", run.writer, run.epoch + 1, run.step, val_metrics)
+        run.epoch, run.start = run.epoch + 1, 0
+        _checkpoint(run, run.epoch, 0)
+        if stop and run.epoch < stage.epochs:
+            status = "stopped"
+            break
     if d.main:
         if status == "done" and not already_done:
-            _export(model, stage_dir / EXPORT, cfg, stage, train_set, step, val_metrics, init_from,
-                    seconds_before + time.monotonic() - t_start)
-        print(f"phyir train {cfg.stage}: {status} at epoch {epoch}, step {step}"
+            _export(run.model, run.stage_dir / EXPORT, cfg, stage, run.train_set, run.step, val_metrics,
+                    run.init_from, run.seconds_before + time.monotonic() - run.t_start)
+        print(f"phyir train {cfg.stage}: {status} at epoch {run.epoch}, step {run.step}"
               + ("; run the same command again to resume" if status == "stopped" else
-                 f"; weights in {stage_dir / EXPORT}"), file=sys.stderr, flush=True)
-        if writer is not None:
-            writer.close()
+                 f"; weights in {run.stage_dir / EXPORT}"), file=sys.stderr, flush=True)
+        if run.writer is not None:
+            run.writer.close()
     d.barrier()
-    return {"status": status, "step": step, "epoch": epoch, "losses": losses, "val": val_metrics,
-            "checkpoint": str(ckpt_path), "model": model}
+    return {"status": status, "step": run.step, "epoch": run.epoch, "losses": run.losses, "val": val_metrics,
+            "checkpoint": str(ckpt_path), "model": run.model}
 
 
 @torch.no_grad()
@@ -590,7 +474,7 @@ def validate(model: PhyIRModel, stage: Stage, val_set, d: Dist, batch_size: int 
     keys = sorted(sums)
     t = torch.tensor([sums[k] for k in keys] + [count], dtype=torch.float64, device=d.device)
     if d.world > 1:
-        keys = _gather(keys, d)[0]
+        keys = gather(keys, d)[0]
         dist.all_reduce(t)
     for n, w in was.items():
         getattr(model, n).train(w)
@@ -612,62 +496,6 @@ def _loader(dataset, batches: list[list[int]], workers: int, seed: int):
                       persistent_workers=False, generator=torch.Generator().manual_seed(seed))
 
 
-def _gather(obj, d: Dist) -> list:
-    if d.world == 1:
-        return [obj]
-    out = [None] * d.world
-    dist.all_gather_object(out, obj)
-    return out
-
-
-def _progress(cfg: TrainConfig, d: Dist, total: int, initial: int, desc: str):
-    if not (cfg.progress and d.main):
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, desc=desc, leave=False, dynamic_ncols=True)
-
-
-def _tensorboard(path: Path, step: int):
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:  # tensorboard not installed: logs go to the jsonl files only
-        return None
-    return SummaryWriter(str(path), purge_step=step or None)
-
-
-def _truncate_log(path: Path, upto: int, key: str = "step") -> None:
-    """Drop lines logged after the checkpoint we resume from (a killed run logged past it)."""
-    if not path.is_file():
-        return
-    keep = [ln for ln in path.read_text().splitlines() if ln.strip() and json.loads(ln)[key] <= upto]
-    path.write_text("".join(ln + "\n" for ln in keep))
-
-
-def _log_step(path: Path, writer, step: int, epoch: int, loss: float, terms: dict, lr: float,
-              every: int) -> None:
-    with open(path, "a") as f:
-        f.write(json.dumps({"step": step, "epoch": epoch, "loss": loss, **terms, "lr": lr}) + "\n")
-    if writer is not None and (step % every == 0 or step == 1):
-        writer.add_scalar("train/loss", loss, step)
-        for k, v in terms.items():
-            writer.add_scalar(f"train/{k}", v, step)
-        writer.add_scalar("train/lr", lr, step)
-
-
-def _log_val(path: Path, writer, epoch: int, step: int, m: dict) -> None:
-    with open(path, "a") as f:
-        f.write(json.dumps({"epoch": epoch, "step": step, **m}) + "\n")
-    if writer is not None:
-        for k, v in m.items():
-            writer.add_scalar(f"val/{k}", v, step)
-    print(f"  val epoch {epoch}: " + ", ".join(f"{k} {v:.4g}" for k, v in m.items()), file=sys.stderr)
-
-
-def _jsonable(x):
-    return json.loads(json.dumps(x, default=str))
-
-
 def _export(model, path: Path, cfg: TrainConfig, stage: Stage, train_set, step: int, val: dict,
             init_from: str | None, seconds: float) -> None:
     from phyir.learn.weights import save_weights
@@ -684,5 +512,5 @@ def _export(model, path: Path, cfg: TrainConfig, stage: Stage, train_set, step: 
             "train_seconds": round(seconds, 1), "data": data, "val": val}
     for k in ("train_only", "reinit", "loss", "weights"):
         if getattr(cfg, k):
-            info[k] = _jsonable(getattr(cfg, k))
+            info[k] = jsonable(getattr(cfg, k))
     save_weights(model, path, info)
