@@ -21,8 +21,9 @@ from phyir.synth.dataset import (
     split_of,
     tiny_settings,
 )
+from phyir.synth.footprints import point_in_obb
 from phyir.synth.lights import AREA, PORTAL, SUN
-from phyir.synth.rooms import CAMERA_HEIGHT, ROOM_HEIGHT, ROOM_WIDTH, generate_room, point_in_obb
+from phyir.synth.rooms import CAMERA_HEIGHT, ROOM_HEIGHT, ROOM_WIDTH, generate_room
 from phyir.synth.tracer import trace
 
 ROOMS = [generate_room(np.random.default_rng([11, i])) for i in range(25)]

@@ -22,8 +22,10 @@ from phyir.synth.lights import (
     _rect_sample,
     _rect_solid_angle,
 )
-from phyir.synth.rooms import SOURCE_RATIO, generate_room
-from phyir.synth.tracer import SPAWN, trace, visible
+from phyir.synth.paths import SPAWN, visible
+from phyir.synth.rooms import generate_room
+from phyir.synth.sources import SOURCE_RATIO
+from phyir.synth.tracer import trace
 
 
 def _room_with(seed: int, want_sun: bool):
@@ -196,7 +198,8 @@ def test_light_samples_per_camera_sample_keep_the_image_unbiased():
     from dataclasses import replace
 
     from phyir.synth.checks import rel_l1
-    from phyir.synth.tracer import build_lightmap, render_camera
+    from phyir.synth.paths import build_lightmap
+    from phyir.synth.tracer import render_camera
 
     sc = _room_with(2022, True)
     st = tiny_settings(size=(32, 64), probe_grid=None, spp=16)

@@ -112,7 +112,8 @@ def _room(index: int, device: str):
 
 def bench_scene_spp(index: int, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     """Noise and time against spp (camera) and shadow rays (probes) for one room."""
-    from phyir.synth.tracer import build_lightmap, render_camera, render_probes
+    from phyir.synth.paths import build_lightmap
+    from phyir.synth.tracer import render_camera, render_probes
 
     sc = _room(index, device)
     st0 = settings_for(cfg, cfg["size"], cfg["probe_grid"], 1)
@@ -172,7 +173,8 @@ def bench_scene_spp(index: int, cfg: dict, device: str, log: Callable[[str], Non
 
 def bench_growth(cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     """Stage times against image size (probe grid = image / 4) and against the probe count."""
-    from phyir.synth.tracer import build_lightmap, render_probes, trace
+    from phyir.synth.paths import build_lightmap
+    from phyir.synth.tracer import render_probes, trace
 
     sc = _room(cfg["scenes"][0], device)
     sizes = []

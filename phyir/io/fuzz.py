@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import hashlib
-import io as _io
 import json
 import os
 import random
@@ -37,13 +36,10 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
-import traceback
-import warnings
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
+
+from phyir.io.fuzz_targets import TARGETS, Hang, Outcome, Target, run_input
 
 TARGET_NAMES = ("exr", "scene", "hdr", "png", "mesh")
 STATS_EVERY_S = 0.25
@@ -53,190 +49,12 @@ TIMEOUT_EXIT = 70  # libFuzzer's exit status after a timeout
 WALL_GRACE_S = 600.0  # a child still running this long after its time is up is blocked
 
 
-class Hang(BaseException):
-    """Raised by the per-input alarm (BaseException: the readers' ``except Exception`` must not eat it)."""
-
-
 # ---------------------------------------------------------------------------------------------
 # seed corpora: small valid files of each format, made by code
 
 
-def _image(H: int, W: int, seed: int):
-    import torch
-
-    g = torch.Generator().manual_seed(seed)
-    return torch.rand(3, H, W, generator=g) * 4
-
-
-def _write_with(fn: Callable[[str], None], suffix: str) -> bytes:
-    with tempfile.TemporaryDirectory() as d:
-        p = os.path.join(d, "seed" + suffix)
-        fn(p)
-        return Path(p).read_bytes()
-
-
-def _seeds_exr() -> list[bytes]:
-    import numpy as np
-
-    from phyir import io
-    from phyir.io import exr
-
-    out = [_write_with(lambda p: io.save_panorama(_image(4, 8, 0), p), ".exr"),
-           _write_with(lambda p: io.save_panorama(_image(4, 8, 1), p, half=True), ".exr")]
-    rgb = _image(4, 8, 2).numpy()
-    for comp in ("NO", "RLE", "PIZ", "ZIPS"):
-        out.append(_write_with(lambda p, c=comp: exr.write_parts(
-            p, [("scene", {}, {k: rgb[i] for i, k in enumerate("RGB")})], compression=c), ".exr"))
-    out.append(_write_with(lambda p: exr.write_parts(
-        p, [("scene", {}, {"Y": rgb[0].astype(np.float16)})], compression="NO"), ".exr"))
-    return out
-
-
-def _small_scene(seed: int):
-    import torch
-
-    from phyir.scene import PanoScene
-
-    g = torch.Generator().manual_seed(seed)
-    H, W = 4, 8
-    n = torch.randn(3, H, W, generator=g)
-    return PanoScene(image=_image(H, W, seed), depth=1 + torch.rand(1, H, W, generator=g),
-                     normal=n / n.norm(dim=0, keepdim=True), albedo=torch.rand(3, H, W, generator=g),
-                     roughness=torch.rand(1, H, W, generator=g), metallic=torch.rand(1, H, W, generator=g),
-                     probes=torch.rand(2, 2, 3, 2, 4, generator=g),
-                     masks={"lamp": torch.rand(1, H, W, generator=g)},
-                     meta={"source": "fuzz seed"})
-
-
-def _seeds_scene() -> list[bytes]:
-    from phyir import io
-
-    return [_write_with(lambda p: io.save_scene(_small_scene(0), p), ".exr"),
-            _write_with(lambda p: io.save_scene(_small_scene(1), p, half=True), ".exr")]
-
-
-def _seeds_hdr() -> list[bytes]:
-    import numpy as np
-
-    from phyir import io
-    from phyir.io import rgbe
-
-    out = [_write_with(lambda p: io.save_panorama(_image(4, 8, 0), p), ".hdr"),
-           _write_with(lambda p: io.save_panorama(_image(8, 16, 1), p), ".hdr")]  # RLE scanlines (W >= 8)
-    flat = rgbe.float_to_rgbe(_image(4, 8, 2).numpy().transpose(1, 2, 0)).astype(np.uint8)
-    out.append(b"#?RADIANCE\nEXPOSURE=1.0\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 8\n" + flat.tobytes())
-    out.append(b"#?RGBE\n\n+X 8 -Y 4\n" + flat.tobytes())
-    return out
-
-
-def _seeds_png() -> list[bytes]:
-    import numpy as np
-    from PIL import Image
-
-    from phyir import io
-
-    out = [_write_with(lambda p: io.save_panorama(_image(4, 8, 0), p), ".png"),
-           _write_with(lambda p: io.save_panorama(_image(4, 8, 1), p, bits=16), ".png"),
-           _write_with(lambda p: io.save_panorama(_image(4, 8, 2), p), ".jpg")]
-    rng = np.random.default_rng(0)
-    for mode, shape in (("L", (4, 8)), ("RGBA", (4, 8, 4)), ("LA", (4, 8, 2)), ("P", (4, 8))):
-        im = Image.fromarray(rng.integers(0, 255, shape, dtype=np.uint8), mode)
-        buf = _io.BytesIO()
-        im.save(buf, format="PNG")
-        out.append(buf.getvalue())
-    return out
-
-
-def _seeds_mesh() -> list[bytes]:
-    obj = (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvn 0 0 1\n"
-           b"f 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
-    quad = b"o quad\nv -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 0\nf 1/1 2/1 3/1 4/1\n"
-    return [obj, quad]
-
-
 # ---------------------------------------------------------------------------------------------
 # targets
-
-
-@dataclass(frozen=True)
-class Target:
-    name: str
-    suffix: str
-    seeds: Callable[[], list[bytes]]
-    modules: tuple[str, ...]  # instrumented for coverage
-    tokens: tuple[bytes, ...] = ()  # a dictionary for the mutators
-
-
-def _read_image(path: str) -> None:
-    """What the program does with an image or scene file: ``phyir info``, then loading."""
-    from phyir import io
-
-    raw = io.read_raw(path, panorama=False)
-    for part in raw.parts:  # the arrays are complete (shape as the header says)
-        for a in part.layers.values():
-            assert a.shape[1:] == (part.height, part.width), (a.shape, part.height, part.width)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        scene = io.load_scene(path)
-    scene.validate()
-
-
-def _read_mesh(path: str) -> None:
-    from phyir.insert.objects import load_mesh
-
-    m = load_mesh(path)
-    assert len(m.faces) and m.faces.max() < len(m.vertices)
-
-
-_IMAGE_MODULES = ("phyir.io.exr", "phyir.io.rgbe", "phyir.io.ldr", "phyir.io", "phyir.scene")
-_EXR_TOKENS = (b"channels\x00chlist\x00", b"compression\x00compression\x00", b"dataWindow\x00box2i\x00",
-               b"displayWindow\x00box2i\x00", b"lineOrder\x00lineOrder\x00", b"name\x00string\x00",
-               b"type\x00string\x00", b"scanlineimage", b"tiledimage", b"probeGrid", b"probeSize",
-               b"chunkCount\x00int\x00", b"R\x00", b"Y\x00", b"mask.", b"phyir.", b"\x76\x2f\x31\x01")
-TARGETS: dict[str, Target] = {
-    "exr": Target("exr", ".exr", _seeds_exr, _IMAGE_MODULES, _EXR_TOKENS),
-    "scene": Target("scene", ".exr", _seeds_scene, _IMAGE_MODULES, _EXR_TOKENS + (b"2x2", b"0x4", b"2x-4")),
-    "hdr": Target("hdr", ".hdr", _seeds_hdr, _IMAGE_MODULES,
-                  (b"#?RADIANCE\n", b"FORMAT=32-bit_rle_rgbe\n", b"EXPOSURE=", b"\n\n", b"-Y ", b"+X ",
-                   b"+Y ", b"-X ", b"\x02\x02", b"nan", b"1e308", b"0")),
-    "png": Target("png", ".png", _seeds_png, _IMAGE_MODULES,
-                  (b"IHDR", b"IDAT", b"IEND", b"PLTE", b"tRNS", b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff",
-                   b"\x00\x00\x00\x00", b"\x10\x06", b"\x08\x02")),
-    "mesh": Target("mesh", ".obj", _seeds_mesh, ("phyir.insert.objects",),
-                   (b"v ", b"f ", b"vn ", b"vt ", b"nan", b"inf", b"1e30", b"-1", b"0", b"/", b"\n",
-                    b"o ", b"g ", b"usemtl ")),
-}
-
-
-@dataclass(frozen=True)
-class Outcome:
-    kind: str  # "ok", "refused" (a PhyIRError: its one-line message) or "finding"
-    text: str = ""  # the message, or the finding's traceback
-    signature: str = ""  # findings: the exception type and the innermost frame in the project
-
-
-def run_input(target: Target, path: str) -> Outcome:
-    """Read the file at ``path`` as the target does and classify what happened."""
-    from phyir.errors import PhyIRError
-
-    try:
-        (_read_mesh if target.name == "mesh" else _read_image)(path)
-    except PhyIRError as e:
-        return Outcome("refused", str(e))
-    except (Exception, Hang) as e:  # noqa: BLE001 - anything else is what we are looking for
-        return Outcome("finding", traceback.format_exc(), signature(e))
-    return Outcome("ok")
-
-
-def signature(e: BaseException) -> str:
-    """What makes two findings the same: the exception type and the innermost frame in phyir/ or
-    viewer/ (else the innermost frame)."""
-    frames = traceback.extract_tb(e.__traceback__)
-    ours = [f for f in frames if ("/phyir/" in f.filename or "/viewer/" in f.filename)
-            and not f.filename.endswith("fuzz.py")]
-    f = (ours or frames or [None])[-1]
-    where = f"{os.path.relpath(f.filename)}:{f.lineno} in {f.name}" if f is not None else "?"
-    return f"{type(e).__name__} at {where}"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -118,8 +118,9 @@ def noise_breakdown(seed: int, index: int, settings: TraceSettings, device=None)
     (light map fixed); each with its :func:`_concentration`. Radiometric units (no exposure)."""
     import numpy as np
 
+    from phyir.synth.paths import build_lightmap
     from phyir.synth.rooms import generate_room
-    from phyir.synth.tracer import build_lightmap, render_camera, render_probes
+    from phyir.synth.tracer import render_camera, render_probes
 
     sc = generate_room(np.random.default_rng([seed, index])).build(device)
     def gen(s):

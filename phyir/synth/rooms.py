@@ -21,8 +21,18 @@ import torch
 
 from phyir.pano import yaw_matrix
 from phyir.synth import geometry as G
-from phyir.synth.lights import SUN_RADIUS, Lights, Sky
+from phyir.synth.footprints import (
+    Item,
+    dist_to_polygon_edges,
+    in_polygon,
+    obb_corners,
+    obb_overlap,
+    point_in_obb,
+)
+from phyir.synth.furniture import art, ball, bed, cabinet, mirror, rug, shelf, sofa, table, vase
+from phyir.synth.lights import Lights, Sky
 from phyir.synth.materials import MaterialTable, Palette
+from phyir.synth.sources import balance_sources, light_colour, polygon_area
 
 ROOM_WIDTH = (2.5, 9.0)
 ROOM_HEIGHT = (2.4, 3.5)
@@ -44,15 +54,6 @@ class PrimSpec:
     uv0: tuple = (0.0, 0.0)
 
 
-@dataclass
-class Item:
-    name: str
-    centre: tuple  # OBB centre (room frame)
-    half: tuple  # OBB half sizes (local x, y, z)
-    yaw: float
-    top: float | None = None  # height of a flat top that can carry small objects
-    fixture: bool = False  # door/window frames: attached to the shell, not furniture
-
 
 @dataclass
 class Room:
@@ -69,9 +70,9 @@ class Room:
 
     # -- geometry helpers ---------------------------------------------------------------------
     def contains(self, x: float, z: float, margin: float = 0.0) -> bool:
-        if not _in_polygon(self.polygon, x, z):
+        if not in_polygon(self.polygon, x, z):
             return False
-        return _dist_to_polygon_edges(self.polygon, x, z) >= margin
+        return dist_to_polygon_edges(self.polygon, x, z) >= margin
 
     def camera_matrix(self) -> np.ndarray:
         return yaw_matrix(self.yaw, dtype=torch.float64).numpy()
@@ -174,67 +175,6 @@ def _prim_bounds(P: G.Prims, gid: int) -> tuple[np.ndarray, np.ndarray]:
 # 2D helpers
 
 
-def _in_polygon(poly, x, z) -> bool:
-    inside = False
-    n = len(poly)
-    for i in range(n):
-        x1, z1 = poly[i]
-        x2, z2 = poly[(i + 1) % n]
-        if (z1 > z) != (z2 > z):
-            xi = x1 + (z - z1) * (x2 - x1) / (z2 - z1)
-            if xi > x:
-                inside = not inside
-    return inside
-
-
-def _dist_to_polygon_edges(poly, x, z) -> float:
-    best = math.inf
-    n = len(poly)
-    for i in range(n):
-        a = np.array(poly[i], float)
-        b = np.array(poly[(i + 1) % n], float)
-        p = np.array((x, z))
-        t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0, 1)
-        best = min(best, float(np.linalg.norm(p - (a + t * (b - a)))))
-    return best
-
-
-def obb_corners(centre, half, yaw) -> np.ndarray:
-    """Footprint corners [4,2] (x, z) of an OBB."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    hx, hz = half[0], half[2]
-    loc = np.array([[-hx, -hz], [hx, -hz], [hx, hz], [-hx, hz]])
-    # local (x, z) -> world with R(yaw): x' = c x + s z, z' = -s x + c z
-    return np.stack((c * loc[:, 0] + s * loc[:, 1] + centre[0],
-                     -s * loc[:, 0] + c * loc[:, 1] + centre[2]), 1)
-
-
-def obb_overlap(a: Item | tuple, b: Item | tuple, margin: float = 0.0) -> bool:
-    """Do two y-rotated OBBs overlap (by more than -margin)? Separating-axis test."""
-    ca, ha, ya = (a.centre, a.half, a.yaw) if isinstance(a, Item) else a
-    cb, hb, yb = (b.centre, b.half, b.yaw) if isinstance(b, Item) else b
-    if abs(ca[1] - cb[1]) >= ha[1] + hb[1] - 1e-9:  # stacking (touching in y) is allowed
-        return False
-    pa, pb = obb_corners(ca, ha, ya), obb_corners(cb, hb, yb)
-    for poly in (pa, pb):
-        for i in range(2):
-            e = poly[i + 1] - poly[i]
-            ax = np.array((-e[1], e[0])) / np.linalg.norm(e)
-            ra, rb = pa @ ax, pb @ ax
-            if ra.max() + margin <= rb.min() + 1e-9 or rb.max() + margin <= ra.min() + 1e-9:
-                return False
-    return True
-
-
-def point_in_obb(p, item: Item, margin: float = 0.0) -> bool:
-    c, s = math.cos(item.yaw), math.sin(item.yaw)
-    dx, dy, dz = p[0] - item.centre[0], p[1] - item.centre[1], p[2] - item.centre[2]
-    lx = c * dx - s * dz
-    lz = s * dx + c * dz
-    h = item.half
-    return abs(lx) <= h[0] + margin and abs(dy) <= h[1] + margin and abs(lz) <= h[2] + margin
-
-
 # ---------------------------------------------------------------------------------------------
 # generation
 
@@ -303,7 +243,7 @@ class _Builder:
             e = (b - a) / L
             n_in = np.array((-e[1], e[0]))
             mid = (a + b) / 2 + 0.01 * n_in
-            if not _in_polygon(poly, *mid):
+            if not in_polygon(poly, *mid):
                 n_in = -n_in
             self.walls.append((a, e, n_in, L, u))
             u += L
@@ -497,16 +437,16 @@ class _Builder:
 
     def furnish(self):
         rng, pal = self.rng, self.pal
-        area = _polygon_area(self.room.polygon)
+        area = polygon_area(self.room.polygon)
         n_items = int(np.clip(rng.poisson(2 + area / 6), 2, 12))
-        makers = [_bed, _table, _shelf, _cabinet, _sofa, _rug, _cabinet, _table, _mirror, _art]
+        makers = [bed, table, shelf, cabinet, sofa, rug, cabinet, table, mirror, art]
         weights = np.array([0.8, 1.2, 1.0, 1.2, 1.0, 0.6, 0.6, 0.4, 0.5, 0.6])
         for _ in range(n_items):
             mk = makers[int(rng.choice(len(makers), p=weights / weights.sum()))]
             name, half, parts, wall, top, y0 = mk(rng, pal)
             self._place(name, half, parts, wall, top, y0)
         for _ in range(int(rng.integers(1, 5))):
-            mk = [_vase, _ball, _vase][int(rng.integers(3))]
+            mk = [vase, ball, vase][int(rng.integers(3))]
             name, half, parts = mk(rng, pal)
             if self._place_on(name, half, parts) is None and name == "vase" and rng.random() < 0.5:
                 self._place(name, half, parts, wall=False)
@@ -524,7 +464,7 @@ class _Builder:
         n_panels = rest - n_lamps
         body = pal.emitter_body()
         def tint():
-            return _light_colour(rng)
+            return light_colour(rng)
         made_panels = 0
         for _ in range(n_panels * 20):
             if made_panels == n_panels:
@@ -611,226 +551,5 @@ class _Builder:
         return False
 
 
-# Dynamic range: the brightest panel/lamp is drawn SOURCE_RATIO (log-uniform, decades) times the
-# radiance of the walls it and the other sources light, estimated in closed form (wall_radiance)
-SOURCE_RATIO = (2.6, 3.5)
-WALL_GAIN = 0.8  # calibration of wall_radiance against rendered medians (docs/synthetic-data.md)
-
-
-def _flux(p: PrimSpec) -> float:
-    """Radiant flux (channel mean) of an area light or a window (sky and sun)."""
-    if p.kind == G.QUAD:
-        area = 4 * p.size[2] * p.size[3]
-    elif p.kind == G.SPH:
-        area = 4 * math.pi * p.size[0] ** 2
-    else:
-        r, hh = p.size
-        area = 2 * math.pi * r * 2 * hh + 2 * math.pi * r * r
-    return math.pi * float(np.mean(p.emit)) * area
-
-
-def _window_flux(room: Room, p: PrimSpec) -> float:
-    sky = room.sky
-    area = 4 * p.size[2] * p.size[3]
-    sky_mean = float(np.mean(sky.zenith + 2 * sky.horizon + sky.ground)) / 4
-    out = math.pi * sky_mean * area
-    if sky.sun_dir is not None:  # the window's normal cross(ex, ey) points into the room
-        n = np.cross(np.asarray(p.size[0], float), np.asarray(p.size[1], float))
-        e_sun = float(np.mean(sky.sun_radiance)) * 2 * math.pi * (1 - math.cos(SUN_RADIUS))
-        out += e_sun * area * max(0.0, -float(np.dot(sky.sun_dir, n)))
-    return out
-
-
-def wall_radiance(room: Room, flux: float) -> float:
-    """Radiance of a typical lit surface for ``flux`` entering the room: irradiance
-    flux / (shell area x (1 - mean albedo)) with interreflections, times albedo / pi (albedos 0.5)."""
-    perimeter = sum(math.dist(room.polygon[i], room.polygon[i - 1]) for i in range(len(room.polygon)))
-    shell = 2 * _polygon_area(room.polygon) + perimeter * room.height
-    return WALL_GAIN * flux / (math.pi * shell)
-
-
-def balance_sources(room: Room, rng: np.random.Generator) -> float | None:
-    """Scale the panels and lamps so the brightest is a drawn 10^SOURCE_RATIO times the estimated
-    wall radiance (the sky and the sun stay as drawn: windows set the rest of the light). Returns the
-    ratio aimed at, None for a room without panels or lamps."""
-    target = 10 ** float(rng.uniform(*SOURCE_RATIO))
-    lamps = [p for p in room.prims if p.emit is not None]
-    if not lamps:
-        return None
-    nat = sum(_window_flux(room, p) for p in room.prims if p.portal)
-    key = max(lamps, key=lambda p: float(np.mean(p.emit)))
-    l_key = float(np.mean(key.emit))
-    f_key = _flux(key)
-    f_oth = sum(_flux(p) for p in lamps if p is not key)
-    per_flux = wall_radiance(room, 1.0)
-    # the key source alone bounds the reachable ratio (its radiance over the walls it lights alone
-    # depends only on its area): a panel too large for the lower bound is made smaller
-    reach = 0.7 * l_key / (per_flux * f_key)
-    if key.kind == G.QUAD and reach < 10 ** SOURCE_RATIO[0]:
-        k = max(0.3, math.sqrt(reach / 10 ** SOURCE_RATIO[0]))
-        key.size = (*key.size[:2], key.size[2] * k, key.size[3] * k)
-        f_key = _flux(key)
-    # dim the others so that the panels and lamps together leave room for the windows' light (or,
-    # without windows, reach the target); then scale all of them against the windows' light
-    target = min(target, 0.7 * l_key / (per_flux * f_key))
-    t = 1.0
-    if f_oth > 0:
-        t = min(1.0, max(0.02, ((0.7 if nat > 0 else 1.0) * l_key / (per_flux * target) - f_key) / f_oth))
-    s = 1.0
-    if nat > 0:
-        s = target * per_flux * nat / max(l_key - target * per_flux * (f_key + t * f_oth), 0.05 * l_key)
-    for p in lamps:
-        p.emit = tuple(float(v) * s * (1.0 if p is key else t) for v in p.emit)
-    return target
-
-
-def _polygon_area(poly) -> float:
-    a = 0.0
-    for i in range(len(poly)):
-        x1, z1 = poly[i]
-        x2, z2 = poly[(i + 1) % len(poly)]
-        a += x1 * z2 - x2 * z1
-    return abs(a) / 2
-
-
-def _light_colour(rng) -> np.ndarray:
-    """Linear RGB tint of a light from warm (2700 K) to cool (6500 K), unit mean."""
-    t = rng.random()
-    warm, cool = np.array((1.0, 0.72, 0.45)), np.array((0.92, 0.98, 1.1))
-    c = warm + (cool - warm) * t
-    return c / c.mean()
-
-
 # ---------------------------------------------------------------------------------------------
 # furniture makers: (name, OBB half sizes, parts, against wall, top height, base y)
-
-
-def _legs(w, d, h, r, m, inset=0.05, cyl=False):
-    out = []
-    for sx in (-1, 1):
-        for sz in (-1, 1):
-            c = (sx * (w / 2 - inset), h / 2, sz * (d / 2 - inset))
-            out.append(("cyl", c, (r, h / 2), m) if cyl else ("box", c, (r, h / 2, r), m))
-    return out
-
-
-def _bed(rng, pal):
-    w = float(rng.choice([0.95, 1.4, 1.6, 1.8])) + float(rng.uniform(-0.05, 0.05))
-    L = float(rng.uniform(1.95, 2.1))
-    frame = pal.wood() if rng.random() < 0.6 else pal.fabric()
-    sheet, blanket, pillow = pal.fabric(), pal.fabric(), pal.fabric()
-    hb = float(rng.uniform(0.8, 1.1))
-    parts = [("box", (0, 0.15, 0), (w / 2, 0.15, L / 2), frame),
-             ("box", (0, 0.4, 0.02), (w / 2 - 0.03, 0.1, L / 2 - 0.06), sheet),
-             ("box", (0, 0.44, -L * 0.15), (w / 2 - 0.01, 0.075, L * 0.33), blanket),
-             ("box", (0, hb / 2, L / 2 - 0.03), (w / 2, hb / 2, 0.03), frame)]
-    n_p = 1 if w < 1.2 else 2
-    for k in range(n_p):
-        x = 0 if n_p == 1 else (k - 0.5) * w / 2
-        pw = min(0.3, w / 4 - 0.02) if n_p == 2 else 0.3
-        parts.append(("box", (x, 0.55, L / 2 - 0.3), (pw, 0.06, 0.18), pillow))
-    return "bed", (w / 2, hb / 2, L / 2), parts, True, None, 0.0
-
-
-def _table(rng, pal):
-    w, d = float(rng.uniform(0.8, 1.8)), float(rng.uniform(0.6, 0.95))
-    h = float(rng.uniform(0.7, 0.77))
-    top = pal.wood(glossy=rng.random() < 0.5) if rng.random() < 0.6 else pal.plastic()
-    legm = pal.metal() if rng.random() < 0.4 else top
-    parts = [("box", (0, h - 0.02, 0), (w / 2, 0.02, d / 2), top)]
-    parts += _legs(w, d, h - 0.04, 0.025, legm, cyl=rng.random() < 0.5)
-    return "table", (w / 2, h / 2, d / 2), parts, rng.random() < 0.4, h, 0.0
-
-
-def _shelf(rng, pal):
-    w, d, h = float(rng.uniform(0.6, 1.2)), float(rng.uniform(0.28, 0.4)), float(rng.uniform(1.4, 2.1))
-    m = pal.wood() if rng.random() < 0.6 else pal.plastic(glossy=False)
-    t = 0.02
-    parts = [("box", (-w / 2 + t, h / 2, 0), (t, h / 2, d / 2), m),
-             ("box", (w / 2 - t, h / 2, 0), (t, h / 2, d / 2), m),
-             ("box", (0, h / 2, d / 2 - 0.005), (w / 2 - 2 * t, h / 2, 0.005), m)]
-    n = int(rng.integers(3, 6))
-    for k in range(n + 1):
-        y = t + k * (h - 2 * t) / n
-        parts.append(("box", (0, y, 0), (w / 2 - 2 * t, t, d / 2 - 0.01), m))
-        if k < n and rng.random() < 0.7:  # a row of books
-            x = -w / 2 + 3 * t
-            while x < w / 2 - 0.15 and rng.random() < 0.85:
-                bw = float(rng.uniform(0.02, 0.05))
-                bh = float(rng.uniform(0.15, min(0.3, (h - 2 * t) / n - 0.05)))
-                cover = pal.plastic() if rng.random() < 0.5 else pal.fabric()
-                parts.append(("box", (x + bw / 2, y + t + bh / 2, -0.01),
-                              (bw / 2 - 0.002, bh / 2, d / 2 - 0.05), cover))
-                x += bw
-    return "shelf", (w / 2, h / 2, d / 2), parts, True, None, 0.0
-
-
-def _cabinet(rng, pal):
-    w, d, h = float(rng.uniform(0.5, 1.6)), float(rng.uniform(0.4, 0.6)), float(rng.uniform(0.6, 1.0))
-    body = pal.wood() if rng.random() < 0.5 else pal.plastic()
-    topm = pal.plastic(glossy=True) if rng.random() < 0.4 else body
-    handle = pal.metal()
-    parts = [("box", (0, (h - 0.03) / 2, 0), (w / 2 - 0.01, (h - 0.03) / 2, d / 2 - 0.01), body),
-             ("box", (0, h - 0.015, 0), (w / 2, 0.015, d / 2), topm)]
-    n = max(1, int(w / 0.45))
-    for k in range(n):
-        x = -w / 2 + (k + 0.5) * w / n
-        parts.append(("box", (x, h * 0.75, -d / 2 + 0.005), (0.06, 0.008, 0.006), handle))
-    return "cabinet", (w / 2, h / 2, d / 2), parts, rng.random() < 0.8, h, 0.0
-
-
-def _sofa(rng, pal):
-    w, d = float(rng.uniform(1.5, 2.4)), float(rng.uniform(0.8, 1.0))
-    m, cush = pal.fabric(), pal.fabric()
-    arm = 0.15
-    parts = [("box", (0, 0.2, 0), (w / 2, 0.2, d / 2), m),
-             ("box", (0, 0.45, d / 2 - 0.1), (w / 2, 0.45, 0.1), m),
-             ("box", (-w / 2 + arm / 2, 0.32, -0.1), (arm / 2, 0.32, d / 2 - 0.1), m),
-             ("box", (w / 2 - arm / 2, 0.32, -0.1), (arm / 2, 0.32, d / 2 - 0.1), m)]
-    n = int(rng.integers(2, 4))
-    cw = (w - 2 * arm) / n
-    for k in range(n):
-        x = -w / 2 + arm + (k + 0.5) * cw
-        parts.append(("box", (x, 0.46, -0.08), (cw / 2 - 0.01, 0.06, d / 2 - 0.14), cush))
-    return "sofa", (w / 2, 0.45, d / 2), parts, rng.random() < 0.7, None, 0.0
-
-
-def _rug(rng, pal):
-    w, d = float(rng.uniform(1.0, 2.5)), float(rng.uniform(0.7, 1.8))
-    parts = [("box", (0, 0.005, 0), (w / 2, 0.005, d / 2), pal.fabric())]
-    return "rug", (w / 2, 0.005, d / 2), parts, False, None, 0.0
-
-
-def _mirror(rng, pal):
-    w, h = float(rng.uniform(0.4, 1.1)), float(rng.uniform(0.6, 1.4))
-    y0 = float(rng.uniform(0.9, 1.1))
-    frame = pal.wood() if rng.random() < 0.5 else pal.metal(brushed=True)
-    parts = [("box", (0, h / 2, 0.01), (w / 2 + 0.03, h / 2 + 0.03, 0.01), frame),
-             ("box", (0, h / 2, 0.0), (w / 2, h / 2, 0.015), pal.metal(mirror=True))]
-    return "mirror", (w / 2 + 0.03, h / 2 + 0.03, 0.02), parts, True, None, y0 - 0.03
-
-
-def _art(rng, pal):
-    w, h = float(rng.uniform(0.4, 1.2)), float(rng.uniform(0.3, 0.9))
-    y0 = float(rng.uniform(1.1, 1.5))
-    canvas = pal.fabric() if rng.random() < 0.5 else pal.ceramic()
-    frame = pal.wood() if rng.random() < 0.5 else pal.metal()
-    parts = [("box", (0, h / 2, 0.01), (w / 2, h / 2, 0.01), frame),
-             ("box", (0, h / 2, 0.0), (w / 2 - 0.03, h / 2 - 0.03, 0.0125), canvas)]
-    return "art", (w / 2, h / 2, 0.0125), parts, True, None, y0
-
-
-def _vase(rng, pal):
-    r, h = float(rng.uniform(0.05, 0.12)), float(rng.uniform(0.15, 0.45))
-    m = pal.ceramic() if rng.random() < 0.6 else pal.metal()
-    parts = [("cyl", (0, h / 2, 0), (r, h / 2), m)]
-    if rng.random() < 0.5:
-        parts.append(("sph", (0, h + r * 0.6, 0), (r * 0.8,), m))
-        h = h + r * 1.4
-    return "vase", (r, h / 2, r), parts
-
-
-def _ball(rng, pal):
-    r = float(rng.uniform(0.05, 0.14))
-    m = pal.metal(mirror=rng.random() < 0.4) if rng.random() < 0.7 else pal.ceramic()
-    return "ball", (r, r, r), [("sph", (0, r, 0), (r,), m)]
