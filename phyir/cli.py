@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.metadata
+import importlib.util
 import os
 import sys
 
@@ -48,8 +49,26 @@ def build_parser() -> argparse.ArgumentParser:
         mod = importlib.import_module(modname)
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _requires=getattr(mod, "REQUIRES", ()))
     return parser
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # blocked, or a module set to None in sys.modules
+        return False
+
+
+def check_requirements(command: str, requires: tuple[str, str, tuple[str, ...]] | tuple) -> None:
+    """A plug-in's ``REQUIRES = (extra, what, modules)``: refuse in one line when a module is missing."""
+    if not requires:
+        return
+    extra, what, modules = requires
+    missing = [m for m in modules if not _installed(m)]
+    if missing:
+        raise PhyIRError(f"{what} needs the {extra!r} extra, missing {', '.join(missing)}: "
+                         f"pip install 'phyir[{extra}]'")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        check_requirements(args.command, args._requires)
         return int(args._run(args) or 0)
     except PhyIRError as e:
         print(f"phyir {args.command}: error: {e}", file=sys.stderr)

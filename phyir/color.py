@@ -4,6 +4,7 @@
   the project, GLSL's ``colour.glsl`` included).
 * :func:`exposure_scale`: the factor that brings an image's median luminance to :data:`KEY` — the
   input normalisation of training and inference alike (docs/training.md).
+* :func:`srgb_to_linear` / :func:`linear_to_srgb`: the sRGB transfer curve (IEC 61966-2-1).
 * :func:`aces` (Narkowicz's ACES fit) and :func:`to_srgb8`: what a display shows of linear radiance,
   the same curve as the viewer's ``colour.glsl``.
 """
@@ -40,6 +41,18 @@ def exposure_scale(image: Tensor) -> Tensor:
     return scale.clamp(*SCALE_RANGE)
 
 
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] to linear (IEC 61966-2-1)."""
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """Linear values to sRGB encoding; clipped to [0, 1] first."""
+    x = np.clip(np.asarray(x, np.float32), 0.0, 1.0)
+    return np.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
 def aces(x):
     """Narkowicz's fit of the ACES filmic tone curve, [0, inf) -> [0, 1); a tensor or a numpy array."""
     x = x.clip(max=1e4)  # the curve is 1 long before; x^2 of x > 1e19 would overflow to inf/inf = NaN
@@ -49,8 +62,6 @@ def aces(x):
 def to_srgb8(x: Tensor | np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """Linear radiance ``[3,H,W]`` tensor or ``[H,W,3]`` array -> display uint8 ``[H,W,3]``:
     ``exposure`` x ACES, sRGB-encoded, rounded."""
-    from phyir.io.ldr import linear_to_srgb
-
     if isinstance(x, Tensor):
         x = x.detach().float().cpu().permute(1, 2, 0).numpy()
     y = linear_to_srgb(aces(np.maximum(x, 0) * exposure))

@@ -32,8 +32,7 @@ def colormap(x: torch.Tensor, name: str = "turbo", lo: float | None = None,
 
 
 def row(scene, render_spp: int) -> list[np.ndarray]:
-    from phyir.color import exposure_scale, to_srgb8
-    from phyir.io.ldr import linear_to_srgb
+    from phyir.color import exposure_scale, linear_to_srgb, to_srgb8
     from phyir.learn.datasets import resize_scene
     from phyir.pano import resize_area
     from phyir.shading.render import render_scene

@@ -1,4 +1,4 @@
-"""The file-reader fuzzer (``python -m phyir.io.fuzz``, docs/robustness.md#fuzzing): the command runs and
+"""The file-reader fuzzer (``python -m phyir.bench.fuzz``, docs/robustness.md#fuzzing): the command runs and
 finds new coverage, its outcome classification, and the inputs it found that broke a reader."""
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from phyir.io import fuzz
+from phyir.bench import fuzz
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def run_fuzzer(tmp_path: Path, *args: str, timeout: float = 240) -> tuple[int, dict, str]:
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
-    p = subprocess.run([sys.executable, "-m", "phyir.io.fuzz", "--out", str(tmp_path), *args], cwd=REPO,
+    p = subprocess.run([sys.executable, "-m", "phyir.bench.fuzz", "--out", str(tmp_path), *args], cwd=REPO,
                        env=env,
                        capture_output=True, text=True, timeout=timeout)
     report = json.loads((tmp_path / "report.json").read_text()) if (tmp_path / "report.json").exists() else {}

@@ -188,7 +188,7 @@ def test_cli_predict_files_and_folders(tmp_path, weights, image, capsys):
 
 
 def test_eval_pair_of_identical_scenes_is_perfect():
-    from phyir.evaluation import evaluate_pair
+    from phyir.evaluation.synthetic import evaluate_pair
 
     gt = tiny_scene(3, H=32, W=64, grid=(4, 8), probe_size=(8, 16))
     m = evaluate_pair(gt, gt, relight=2, spp=8)
@@ -230,7 +230,7 @@ def test_cli_eval_on_predictions_and_on_a_dataset(tmp_path, weights, capsys):
 
 def test_dataset_means_baseline(tmp_path):
     from phyir.color import exposure_scale
-    from phyir.evaluation import dataset_means, means_baseline
+    from phyir.evaluation.synthetic import dataset_means, means_baseline
 
     write_dataset(tmp_path, n_train=2, n_val=1, H=32, W=64, grid=(2, 4), probe_size=(4, 8))
     train = [load_scene(tmp_path / f"scene_{i:06d}.exr") for i in range(2)]

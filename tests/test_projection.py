@@ -296,6 +296,6 @@ def test_synthetic_room_diffuse_walls_match_ground_truth():
     # texel by texel (median) within 3 %; the total within 10 %: it is dominated by a few bright
     # wall texels right beside the lamps, where the ground truth's one ray per texel and the
     # projection's 2x2 supersampling see a steep gradient differently (0.92 with the generator's
-    # brighter lamps of session 2; within 3 % with the session-1 generator)
+    # bright lamps; within 3 % with dimmer ones)
     assert float((proj[m] / gt[m]).median()) == pytest.approx(1.0, abs=0.03)
     assert float(proj[m].sum() / gt[m].sum()) == pytest.approx(1.0, abs=0.10)

@@ -529,7 +529,7 @@ def test_importance_with_eight_times_fewer_samples_beats_uniform_on_a_glossy_die
                   for s in range(3))
     assert importance < uniform / 4, (importance, uniform)
     # and at the smallest counts, 8x and 16x fewer than uniform at 16 spp (measured: squared error
-    # 8x and 30x lower; 1 spp was one cosine sample before session 4: 25x higher than uniform)
+    # 8x and 30x lower; a single cosine sample at 1 spp measured 25x higher than uniform)
     uniform = sum(_error(render.shade_env(*args, env, spp=16, method="uniform", seed=s), ref)
                   for s in range(3))
     for spp, margin in ((2, 16), (1, 4)):

@@ -1,4 +1,4 @@
-"""A long scripted session of the real viewer (issue 9, part 4).
+"""A long scripted session of the real viewer.
 
 The App (headless EGL, imgui interface drawn every frame) goes through 500 seeded random actions —
 opening files (small generated scenes and panoramas, a real panorama when ``../shared/panos`` is
@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 import torch
 
-from viewer import window as _surfaces
+from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 

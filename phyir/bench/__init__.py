@@ -1,1 +1,2 @@
-"""``phyir bench``: the harness (measure, report) and every benchmark target."""
+"""``phyir bench`` and the robustness tools: the harness (measure, report), every benchmark target, and the
+file-reader fuzzer (``python -m phyir.bench.fuzz``)."""

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if bool(args.data) == bool(args.predictions):
         raise PhyIRError("give either prediction files with --gt, or --data (run the model)")
     if args.data:
-        from phyir.evaluation import evaluate_model
+        from phyir.evaluation.synthetic import evaluate_model
 
         results = evaluate_model(args.data, args.split, weights=args.weights, device=args.device,
                                  limit=args.limit, probes_per_scene=args.probes_per_scene,
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         if not args.gt:
             raise PhyIRError("prediction files need --gt DIR (the ground-truth scenes)")
-        from phyir.evaluation import evaluate_pair
+        from phyir.evaluation.synthetic import evaluate_pair
         from phyir.metrics import MetricMeter
 
         meter = MetricMeter()

@@ -51,7 +51,7 @@ def normalize_scene(scene: PanoScene) -> PanoScene:
 
 def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
     """What a camera + the LDR loader would give: ACES, sRGB gamma, 8 bits, sRGB decode to linear."""
-    from phyir.io.ldr import linear_to_srgb, srgb_to_linear
+    from phyir.color import linear_to_srgb, srgb_to_linear
 
     enc = linear_to_srgb(aces(image * exposure).numpy())
     return torch.from_numpy(srgb_to_linear(np.round(enc * 255.0) / 255.0))

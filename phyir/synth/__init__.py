@@ -5,21 +5,19 @@ Heavy modules load lazily, so ``import phyir.synth`` stays cheap.
 
 from __future__ import annotations
 
-__all__ = ["demo_scene_path", "generate_scene", "make_tiny_dataset", "generate_dataset", "DatasetConfig",
-           "TraceSettings", "trace", "generate_room"]
+import importlib
+
+# public name -> the module that defines it
+_LAZY = {
+    "demo_scene_path": "phyir.synth.dataset", "generate_scene": "phyir.synth.dataset",
+    "make_tiny_dataset": "phyir.synth.dataset", "generate_dataset": "phyir.synth.dataset",
+    "DatasetConfig": "phyir.synth.dataset", "TraceSettings": "phyir.synth.tracer",
+    "trace": "phyir.synth.tracer", "generate_room": "phyir.synth.rooms",
+}
+__all__ = list(_LAZY)
 
 
 def __getattr__(name: str):
-    if name in __all__[:5]:
-        from phyir.synth import dataset
-
-        return getattr(dataset, name)
-    if name in ("TraceSettings", "trace"):
-        from phyir.synth import tracer
-
-        return getattr(tracer, name)
-    if name == "generate_room":
-        from phyir.synth.rooms import generate_room
-
-        return generate_room
-    raise AttributeError(f"module 'phyir.synth' has no attribute {name!r}")
+    if name not in _LAZY:
+        raise AttributeError(f"module 'phyir.synth' has no attribute {name!r}")
+    return getattr(importlib.import_module(_LAZY[name]), name)

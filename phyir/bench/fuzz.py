@@ -1,4 +1,4 @@
-"""Coverage-guided fuzzing of the file readers: ``python -m phyir.io.fuzz --seconds 60 [--target exr]``.
+"""Coverage-guided fuzzing of the file readers: ``python -m phyir.bench.fuzz --seconds 60 [--target exr]``.
 
 Targets (each reads a file the way the program does; the seed corpus is made here by code):
 
@@ -39,7 +39,7 @@ import sys
 import time
 from pathlib import Path
 
-from phyir.io.fuzz_targets import TARGETS, Hang, Outcome, Target, run_input
+from phyir.bench.fuzz_targets import TARGETS, Hang, Outcome, Target, run_input
 
 TARGET_NAMES = ("exr", "scene", "hdr", "png", "mesh")
 STATS_EVERY_S = 0.25
@@ -383,8 +383,9 @@ def fuzz_target(name: str, seconds: float, out: Path, *, engine: str = "auto", t
         if left < 1 or runs >= 50:
             break
         runs += 1
-        cmd = [sys.executable, "-m", "phyir.io.fuzz", "--child", "--target", name, "--seconds", f"{left:.1f}",
-               "--out", str(out), "--engine", engine, "--timeout", str(timeout), "--seed", str(seed + runs),
+        cmd = [sys.executable, "-m", "phyir.bench.fuzz", "--child", "--target", name,
+               "--seconds", f"{left:.1f}", "--out", str(out), "--engine", engine, "--timeout", str(timeout),
+               "--seed", str(seed + runs),
                "--max-len", str(max_len)]
         with open(work / f"log-{runs}.txt", "wb") as logf:
             proc = subprocess.Popen(cmd, stdout=logf, stderr=subprocess.STDOUT)
@@ -446,7 +447,7 @@ def _libfuzzer_coverage(work: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m phyir.io.fuzz", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m phyir.bench.fuzz", description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=60.0, help="time per target (s)")
     p.add_argument("--target", action="append", choices=(*TARGET_NAMES, "all"),
                    help="reader to fuzz (repeatable; default all)")
@@ -463,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         return _child_main(args)
     names = TARGET_NAMES if not args.target or "all" in args.target else tuple(dict.fromkeys(args.target))
     if args.engine == "atheris" and not atheris_available():
-        print("phyir.io.fuzz: atheris is not installed (pip install atheris); use --engine builtin",
+        print("phyir.bench.fuzz: atheris is not installed (pip install atheris); use --engine builtin",
               file=sys.stderr)
         return 2
     out = Path(args.out)

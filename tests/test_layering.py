@@ -1,0 +1,190 @@
+"""The house rules (docs/architecture.md), checked on the source so they stay true.
+
+* ``phyir`` never imports GL or the app, lazily or not, and works with the GL packages absent;
+* each package imports only packages of its own layer or below;
+* no module uses another module's private names;
+* no file over 600 lines, class over 350, function over 100 (outside tests);
+* no test module imports another; the GL packages are an extra, not a base dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import tomllib
+
+REPO = Path(__file__).resolve().parents[1]
+GL_MODULES = ("viewer", "moderngl", "glfw", "imgui_bundle", "OpenGL")
+# layer of each unit (a top-level module or subpackage of phyir, or the app); imports go down or sideways
+LAYERS = {
+    "phyir.errors": 0, "phyir.scene": 0, "phyir.pano": 0, "phyir.color": 0, "phyir.filters": 0,
+    "phyir.transforms": 0,
+    "phyir.io": 1, "phyir.shading": 1,
+    "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,
+    "phyir.learn": 3,
+    "phyir.inference": 4,
+    "phyir.evaluation": 5, "phyir.insert": 5,
+    "phyir.bench": 6,
+    "phyir.commands": 7, "phyir.cli": 7,
+    "viewer": 8,
+}
+SOURCE_DIRS = ("phyir", "viewer", "benchmarks", "scripts")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def unit(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == "phyir" else parts[0]
+
+
+def sources(*dirs: str) -> list[Path]:
+    return sorted(p for d in dirs for p in (REPO / d).rglob("*.py"))
+
+
+def imported_modules(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, module) of every import, lazy ones included; ``from pkg import name`` counts as
+    ``pkg.name`` (the name may be a module)."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+    return out
+
+
+def test_every_library_unit_has_a_layer():
+    units = {unit(module_name(p)) for p in sources("phyir")} - {"phyir"}
+    assert units <= set(LAYERS), f"add a layer for {sorted(units - set(LAYERS))}"
+
+
+def test_the_library_never_imports_gl_or_the_app():
+    bad = [f"{p.relative_to(REPO)}:{line}: {m}" for p in sources("phyir")
+           for line, m in imported_modules(ast.parse(p.read_text())) if m.split(".")[0] in GL_MODULES]
+    bad += [f"{p.relative_to(REPO)}: names a GL module in import_module()" for p in sources("phyir")
+            if any(f'import_module("{g}' in p.read_text() for g in GL_MODULES)]
+    assert not bad, "\n".join(bad)
+
+
+def test_imports_never_go_up_a_layer():
+    bad = []
+    for p in sources("phyir", "viewer"):
+        me = unit(module_name(p))
+        if me == "phyir":  # the package's facade (lazy names)
+            continue
+        for line, m in imported_modules(ast.parse(p.read_text())):
+            if m.split(".")[0] not in ("phyir", "viewer"):
+                continue
+            them = unit(m)
+            if them == "phyir":
+                bad.append(f"{p.relative_to(REPO)}:{line}: {m} (the facade; import from its module)")
+            elif them in LAYERS and LAYERS[them] > LAYERS[me]:
+                bad.append(f"{p.relative_to(REPO)}:{line}: {me} (layer {LAYERS[me]}) imports {m} "
+                           f"(layer {LAYERS[them]})")
+    assert not bad, "\n".join(bad)
+
+
+def private_uses(tree: ast.AST) -> list[tuple[int, str]]:
+    """``from m import _x`` and ``alias._x`` where ``alias`` is an imported module or name."""
+    names: set[str] = set()
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            for a in node.names:
+                names.add(a.asname or a.name.split(".")[0])
+                private = a.name.startswith("_") and not a.name.startswith("__")
+                if isinstance(node, ast.ImportFrom) and private:
+                    out.append((node.lineno, f"from {node.module} import {a.name}"))
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in names
+                and node.attr.startswith("_") and not node.attr.startswith("__")):
+            out.append((node.lineno, f"{node.value.id}.{node.attr}"))
+    return out
+
+
+def test_no_module_uses_another_modules_private_names():
+    bad = [f"{p.relative_to(REPO)}:{line}: {use}" for p in sources(*SOURCE_DIRS)
+           for line, use in private_uses(ast.parse(p.read_text()))]
+    assert not bad, "\n".join(bad)
+
+
+def test_sizes_stay_on_a_screen():
+    bad = []
+    for p in sources(*SOURCE_DIRS):
+        text = p.read_text()
+        if text.count("\n") > 600:
+            bad.append(f"{p.relative_to(REPO)}: {text.count(chr(10))} lines (at most 600)")
+        for node in ast.walk(ast.parse(text)):
+            n = getattr(node, "end_lineno", 0) - getattr(node, "lineno", 0) + 1
+            if isinstance(node, ast.ClassDef) and n > 350:
+                bad.append(f"{p.relative_to(REPO)}:{node.lineno}: class {node.name} {n} lines (at most 350)")
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and n > 100:
+                bad.append(f"{p.relative_to(REPO)}:{node.lineno}: {node.name}() {n} lines (at most 100)")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_test_module_imports_another():
+    tests = {p.stem for p in (REPO / "tests").rglob("*.py") if p.stem != "__init__"}
+    bad = []
+    for p in (REPO / "tests").rglob("*.py"):
+        for line, m in imported_modules(ast.parse(p.read_text())):
+            if any(part in tests for part in m.split(".")[:2]) and not m.startswith(("phyir", "viewer")):
+                bad.append(f"{p.relative_to(REPO)}:{line}: imports {m}")
+    assert not bad, "\n".join(bad)
+
+
+def test_every_package_ships():
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {module_name(p) for d in ("phyir", "viewer") for p in (REPO / d).rglob("__init__.py")}
+    assert found - {"viewer.shaders"} <= listed, f"add to pyproject.toml: {sorted(found - listed)}"
+
+
+def test_gl_packages_are_an_extra():
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    gl = {"moderngl", "glfw", "imgui-bundle", "pyopengl"}
+
+    def names(reqs):
+        return {r.split(">")[0].split("=")[0].split("<")[0].strip().lower() for r in reqs}
+    assert not names(project["dependencies"]) & gl
+    assert names(project["optional-dependencies"]["viewer"]) >= gl
+
+
+BLOCK_GL = f"""
+import importlib, importlib.abc, pkgutil, sys
+class NoGL(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {GL_MODULES[1:]!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}} (blocked: GL not installed)")
+sys.meta_path.insert(0, NoGL())
+import phyir
+for m in pkgutil.walk_packages(phyir.__path__, "phyir."):
+    if not m.name.endswith("__main__"):
+        importlib.import_module(m.name)
+from phyir.cli import main
+for cmd in ("info", "synth", "train", "predict", "eval", "bench", "insert"):
+    try:
+        main([cmd, "--help"])
+    except SystemExit as e:
+        assert e.code == 0, (cmd, e.code)
+assert not any(m.split(".")[0] in {GL_MODULES[1:]!r} for m in sys.modules)
+# the GL command says what is missing, in one line
+assert main(["insert", "x.hdr", "--object", "sphere", "--at", "1,1", "-o", "y.exr"]) == 2
+print("ok")
+"""
+
+
+@pytest.mark.slow
+def test_the_library_and_its_commands_work_without_gl_installed():
+    out = subprocess.run([sys.executable, "-c", BLOCK_GL], capture_output=True, text=True, cwd=REPO,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().endswith("ok")
+    assert "phyir insert: error:" in out.stderr and "phyir[viewer]" in out.stderr, out.stderr[-2000:]
