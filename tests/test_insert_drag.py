@@ -16,8 +16,8 @@ moderngl = pytest.importorskip("moderngl")
 trimesh = pytest.importorskip("trimesh")
 
 from phyir.insert.objects import PRESETS, SceneObject, _finish  # noqa: E402
+from phyir.insert.views import EquirectView  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
-from viewer.view import EquirectView  # noqa: E402
 
 pytestmark = pytest.mark.gl
 # DRAGGING with every pass as it was before the cheaper paths (the full mesh, per-proxy look-ups)

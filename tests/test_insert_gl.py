@@ -24,9 +24,9 @@ from phyir.shading.render import shade_env
 moderngl = pytest.importorskip("moderngl")
 
 from phyir.insert.objects import PRESETS, SceneObject, primitive  # noqa: E402
-from viewer import glsl  # noqa: E402
+from phyir.insert.views import EquirectView  # noqa: E402
+from viewer.gl import glsl  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
-from viewer.view import EquirectView  # noqa: E402
 
 pytestmark = pytest.mark.gl
 PANOS = Path(__file__).resolve().parents[2] / "shared" / "panos"

@@ -11,7 +11,7 @@ import pytest
 import torch
 from PIL import Image
 
-from phyir import PanoScene, io
+from phyir import PanoScene, color, io
 from phyir.errors import PhyIRError
 from phyir.io import ldr, rgbe
 from phyir.pano import normals_from_depth
@@ -249,9 +249,9 @@ def test_real_panoramas_load(panos_dir):
 
 def test_srgb_transfer():
     x = np.linspace(0, 1, 1001, dtype=np.float32)
-    assert np.allclose(ldr.linear_to_srgb(ldr.srgb_to_linear(x)), x, atol=1e-6)
-    assert ldr.srgb_to_linear(np.float32(0.5)) == pytest.approx(0.21404, abs=1e-5)
-    assert ldr.srgb_to_linear(np.float32(0.04)) == pytest.approx(0.04 / 12.92)
+    assert np.allclose(color.linear_to_srgb(color.srgb_to_linear(x)), x, atol=1e-6)
+    assert color.srgb_to_linear(np.float32(0.5)) == pytest.approx(0.21404, abs=1e-5)
+    assert color.srgb_to_linear(np.float32(0.04)) == pytest.approx(0.04 / 12.92)
 
 
 @pytest.mark.parametrize("bits", [8, 16])
@@ -262,7 +262,7 @@ def test_png_round_trip_within_quantisation(tmp_path, bits):
     back = io.load_panorama(tmp_path / "p.png")
     q = 2**bits - 1
     def enc(x):
-        return torch.from_numpy(ldr.linear_to_srgb(x.numpy()))
+        return torch.from_numpy(color.linear_to_srgb(x.numpy()))
     assert (enc(back) - enc(t.clamp(max=1))).abs().max() <= 0.5 / q + 1e-6
     if bits == 8:
         assert np.array_equal(np.asarray(Image.open(tmp_path / "p.png")),
@@ -309,7 +309,7 @@ def test_png16_all_filters_and_colour_types(tmp_path):
         (tmp_path / "f.png").write_bytes(_png16(s, ctype, [0, 1, 2, 3, 4]))
         got = io.load_panorama(tmp_path / "f.png").permute(1, 2, 0).numpy()
         rgb = s[..., :3] if c >= 3 else np.repeat(s[..., :1], 3, axis=2)  # alpha dropped, gray copied
-        assert np.allclose(got, ldr.srgb_to_linear(rgb / 65535.0), atol=1e-6), ctype
+        assert np.allclose(got, color.srgb_to_linear(rgb / 65535.0), atol=1e-6), ctype
 
 
 def test_png16_gray_matches_pillow(tmp_path):
@@ -317,7 +317,7 @@ def test_png16_gray_matches_pillow(tmp_path):
     g = np.cumsum(rng.integers(0, 900, (16, 32)), axis=1).astype(np.uint16)
     Image.fromarray(g).save(tmp_path / "g.png")  # Pillow's own encoder (adaptive filters)
     got = io.load_panorama(tmp_path / "g.png")[0].numpy()
-    assert np.allclose(got, ldr.srgb_to_linear(np.asarray(Image.open(tmp_path / "g.png")) / 65535.0))
+    assert np.allclose(got, color.srgb_to_linear(np.asarray(Image.open(tmp_path / "g.png")) / 65535.0))
 
 
 def test_jpeg_round_trip_approximate(tmp_path):

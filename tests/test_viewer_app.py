@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from viewer import window as _surfaces
+from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 

@@ -26,7 +26,7 @@ def run_mapping(ctx, mode: int, size: tuple[int, int], dirs: np.ndarray | None =
                 persp=(1.0, 0.0, 0.0)) -> np.ndarray:
     """Evaluate shaders/mapping_check.frag; returns H x W x 4 float32 (rows from the top for modes
     0/2, rows in upload order for mode 1)."""
-    from viewer import glsl
+    from viewer.gl import glsl
 
     W, H = size
     prog = glsl.program(ctx, "fullscreen.vert", "mapping_check.frag", {"MODE": mode})
@@ -78,8 +78,8 @@ def test_glsl_perspective_dirs_match_pano(ctx, fov, yaw, pitch):
 
 
 def test_view_math_mirrors_pano(ctx):
-    """viewer/view.py (hover, clicks, markers) uses the same cameras as the shaders."""
-    from viewer.view import EquirectView, PerspectiveView
+    """phyir/insert/views.py (hover, clicks, markers) uses the same cameras as the shaders."""
+    from phyir.insert.views import EquirectView, PerspectiveView
 
     v = PerspectiveView(fov=70.0, yaw=0.7, pitch=-0.3)
     H, W = 30, 50
@@ -100,7 +100,7 @@ def test_view_math_mirrors_pano(ctx):
 
 def test_perspective_matrices_project_onto_the_pixels():
     """For meshes (object insertion): projection @ view maps a point seen through a pixel to it."""
-    from viewer.view import PerspectiveView
+    from phyir.insert.views import PerspectiveView
 
     v = PerspectiveView(fov=65.0, yaw=-0.8, pitch=0.35)
     W, H = 64, 40
@@ -137,7 +137,7 @@ def smooth_pano(H: int, W: int) -> np.ndarray:
 
 
 def test_equirect_view_at_one_to_one_shows_every_texel(renderer):
-    from viewer.view import EquirectView
+    from phyir.insert.views import EquirectView
 
     H, W = 32, 64
     rng = np.random.default_rng(3)
@@ -151,7 +151,7 @@ def test_equirect_view_at_one_to_one_shows_every_texel(renderer):
 
 
 def test_equirect_view_zoomed_nearest_repeats_texels(renderer):
-    from viewer.view import EquirectView
+    from phyir.insert.views import EquirectView
 
     H, W = 16, 32
     img = np.random.default_rng(4).random((H, W, 1), dtype=np.float32)
@@ -167,7 +167,7 @@ def test_equirect_view_zoomed_nearest_repeats_texels(renderer):
 
 @pytest.mark.parametrize("fov,yaw,pitch", [(75.0, 0.0, 0.0), (100.0, 2.0, 0.5)])
 def test_perspective_view_matches_pano_perspective_crop(renderer, fov, yaw, pitch):
-    from viewer.view import PerspectiveView
+    from phyir.insert.views import PerspectiveView
 
     H, W = 128, 256
     img = smooth_pano(H, W)
@@ -199,8 +199,8 @@ def lut_lookup(lut: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def displayed(renderer, values: np.ndarray, display) -> np.ndarray:
     """uint8 colours of an H x W x C value image shown 1:1 (one-pass path)."""
+    from phyir.insert.views import EquirectView
     from viewer.renderer import Frame
-    from viewer.view import EquirectView
 
     H, W = values.shape[:2]
     tex = renderer.texture(values)
@@ -269,8 +269,8 @@ def test_normals_and_colours_display(renderer):
 
 
 def test_markers_are_rings_at_their_positions(renderer):
+    from phyir.insert.views import EquirectView
     from viewer.renderer import Display, Frame, Marker
-    from viewer.view import EquirectView
 
     H, W = 64, 128
     tex = renderer.texture(np.zeros((H, W, 3), np.float32))

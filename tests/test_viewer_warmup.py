@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from viewer import window as _surfaces
+from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
@@ -97,7 +97,7 @@ def test_variant_classes_are_what_llvmpipe_compiles_for():
         import json, time
         import moderngl, numpy as np
         from viewer.renderer import Display, Frame, Renderer
-        from viewer.view import EquirectView
+        from phyir.insert.views import EquirectView
         ctx = moderngl.create_standalone_context(backend="egl")
         r = Renderer(ctx)
         fbo = ctx.framebuffer([ctx.texture((8, 8), 4)])

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from viewer import window as _surfaces
+from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # same process as the headless tests: PyOpenGL talks EGL, GLFW makes EGL contexts
 
@@ -225,7 +225,7 @@ def test_idle_window_does_not_redraw(app, scene_file):
 def test_frame_time_of_the_panorama_view(display, panos_dir, capsys):
     """Plain panorama view with a 1024x512 view rectangle (reported, not asserted tightly)."""
     from viewer.app import App
-    from viewer.gui import PANEL_WIDTH
+    from viewer.ui.gui import PANEL_WIDTH
 
     pano_path = sorted(panos_dir.glob("*.hdr"))[0]
     a = App((1024 + PANEL_WIDTH, 512 + 2 * 22), recent=False, run_model=False)

@@ -186,20 +186,19 @@ def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     finally:
         ins.release()
         ctx.release()
-    mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
     table = []
     for (mat, name), r in rows.items():
         s = next(x for x in settings if x["name"] == name)
-        call_ms = 1e3 * mean(r["times"])
-        prep_ms = 1e3 * mean(r["preps"])
+        call_ms = 1e3 * _mean(r["times"])
+        prep_ms = 1e3 * _mean(r["preps"])
         table.append({"material": mat, "setting": name, "kind": s["kind"], "ggx": s.get("ggx"),
-                      "err": mean(r["errs"]), "err_max": max(r["errs"]), "err_raw": mean(r["raws"]),
-                      "call_ms": call_ms, "q1_ms": 1e3 * mean([q[0] for q in r["q"]]),
-                      "q3_ms": 1e3 * mean([q[1] for q in r["q"]]), "prep_ms": prep_ms,
+                      "err": _mean(r["errs"]), "err_max": max(r["errs"]), "err_raw": _mean(r["raws"]),
+                      "call_ms": call_ms, "q1_ms": 1e3 * _mean([q[0] for q in r["q"]]),
+                      "q3_ms": 1e3 * _mean([q[1] for q in r["q"]]), "prep_ms": prep_ms,
                       "frame_ms": max(call_ms - prep_ms, 0.0) if s["kind"] == "glsl" else call_ms,
-                      "call_cpu_ms": 1e3 * mean(r["cpu"]),
-                      "frame_cpu_ms": max(1e3 * (mean(r["cpu"]) - mean(r["prep_cpu"])), 0.0),
-                      "reference_noise": mean(ref_noise[mat])})
+                      "call_cpu_ms": 1e3 * _mean(r["cpu"]),
+                      "frame_cpu_ms": max(1e3 * (_mean(r["cpu"]) - _mean(r["prep_cpu"])), 0.0),
+                      "reference_noise": _mean(ref_noise[mat])})
     result["rows"] = table
     result["config"]["loadavg_end"] = os.getloadavg()
     save_target(out, "shading", result, plot, format_table, log)
@@ -273,3 +272,7 @@ def plot(result: dict, path: Path) -> None:
         ax.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def _mean(xs: list[float]) -> float:
+    return sum(xs) / len(xs)

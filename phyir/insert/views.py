@@ -102,6 +102,12 @@ class PerspectiveView:
     pitch: float = 0.0
     kind: str = "perspective"
 
+    def update(self, fov: float | None = None, yaw: float | None = None, pitch: float | None = None) -> None:
+        """Set the given parameters (``fov`` in degrees, ``yaw`` and ``pitch`` in radians), keep the rest."""
+        for name, value in (("fov", fov), ("yaw", yaw), ("pitch", pitch)):
+            if value is not None:
+                setattr(self, name, value)
+
     def rotation(self) -> np.ndarray:
         """Camera-to-world rotation (pano.perspective_dirs: yaw_matrix(-yaw) @ pitch matrix)."""
         cp, sp = math.cos(self.pitch), math.sin(self.pitch)
@@ -292,7 +298,7 @@ class ViewSpec:
 def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """uint8 sRGB of linear ``rgb [h,w,3]``: ``2^exposure`` x ACES (Narkowicz fit, as the viewer's
     colour.glsl); ``exposure`` None: the median luminance maps to 0.18."""
-    from phyir.io.ldr import linear_to_srgb
+    from phyir.color import linear_to_srgb
 
     x = np.maximum(rgb, 0)
     if exposure is None:

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from phyir.color import linear_to_srgb
 from phyir.errors import InputError, PhyIRError
 from phyir.io import exr, ldr, rgbe
 from phyir.io.sniff import ASPECT_TOL, MAX_SIZE, MIN_SIZE, check_panorama_size, check_size, header_size, sniff
@@ -367,7 +368,7 @@ def save_panorama(t: Tensor, path: str | os.PathLike, *, bits: int = 8, half: bo
         with atomic_write(p) as tmp, open(tmp, "wb") as f:
             f.write(data)
     elif ext == ".png" and bits == 16:
-        data = ldr.encode_png16(np.round(ldr.linear_to_srgb(hwc) * 65535).astype(np.uint16))
+        data = ldr.encode_png16(np.round(linear_to_srgb(hwc) * 65535).astype(np.uint16))
         with atomic_write(p) as tmp, open(tmp, "wb") as f:
             f.write(data)
     elif ext in (".png", ".jpg", ".jpeg"):
@@ -375,7 +376,7 @@ def save_panorama(t: Tensor, path: str | os.PathLike, *, bits: int = 8, half: bo
             raise ValueError(f"save_panorama: {bits}-bit output is not supported for {ext}")
         from PIL import Image
 
-        im = Image.fromarray(np.round(ldr.linear_to_srgb(hwc) * 255).astype(np.uint8), "RGB")
+        im = Image.fromarray(np.round(linear_to_srgb(hwc) * 255).astype(np.uint8), "RGB")
         with atomic_write(p) as tmp:
             if ext == ".png":
                 im.save(tmp, format="PNG")

@@ -1,5 +1,5 @@
 """The worker's events applied to the App's state (on the GL thread, from ``App.poll``): each
-event type has its handler in :data:`HANDLERS`."""
+event type (``viewer.worker``'s dataclasses) has its handler, found by the event's type."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ class WorkerEvents:
         """Apply the worker's events; True if anything changed."""
         events = self.worker.poll()
         for event in events:
-            HANDLERS[type(event)](self, event)
+            self._handlers[type(event)](self, event)
         return bool(events)
 
     def _on_loaded(self, loaded: Loaded) -> None:
@@ -88,8 +88,6 @@ class WorkerEvents:
         self.timings["job"] = time.perf_counter() - self._job_start
         self._refresh_pins()
 
-
-HANDLERS = {Loaded: WorkerEvents._on_loaded, Progress: WorkerEvents._on_progress,
-            LayersReady: WorkerEvents._on_layers, GroundTruth: WorkerEvents._on_gt,
-            Rendered: WorkerEvents._on_rendered, Note: WorkerEvents._on_note, Failed: WorkerEvents._on_failed,
-            Done: WorkerEvents._on_done}
+    # each event type's handler (functions of this class body, called with the App)
+    _handlers = {Loaded: _on_loaded, Progress: _on_progress, LayersReady: _on_layers, GroundTruth: _on_gt,
+                 Rendered: _on_rendered, Note: _on_note, Failed: _on_failed, Done: _on_done}

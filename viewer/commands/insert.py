@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import time
 
+# checked by phyir.cli before run(): the renderer needs GL
+REQUIRES = ("viewer", "phyir insert", ("moderngl", "glfw", "trimesh"))
 HELP = "insert a sphere, cube, cylinder or mesh into a panorama and render it (EXR passes + PNG, GIF)"
 
 
@@ -67,35 +69,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from phyir.errors import InputError
-    from viewer import export  # GL and trimesh are imported only here
+    from phyir.insert import views  # GL and trimesh are imported only here
+    from viewer.gl.window import gl_context
     from viewer.insertion import DRAGGING, FULL, InsertionRenderer
 
     t0 = time.perf_counter()
-    scene = export.load_input(args.input, weights=args.weights)
+    scene = views.load_insert_scene(args.input, weights=args.weights)
     H, W = scene.size
-    obj = export.make_object(args.object, args.scale, args.material)
+    obj = views.make_object(args.object, args.scale, args.material)
     waypoints = None
     if args.path:
         waypoints = [_floats(p, 2, "--path") for p in args.path.split(":")]
-        points = export.path_points(waypoints, args.frames, W)
+        points = views.path_points(waypoints, args.frames, W)
     elif args.at:
-        export.place_object(obj, scene, at=_floats(args.at, 2, "--at"))
+        views.place_object(obj, scene, at=_floats(args.at, 2, "--at"))
     elif args.position:
-        export.place_object(obj, scene, position=_floats(args.position, 3, "--position"))
+        views.place_object(obj, scene, position=_floats(args.position, 3, "--position"))
     else:
         raise InputError("--at", "give --at U,V, --position X,Y,Z or --path U1,V1:U2,V2")
-    ctx = export.gl_context()
+    ctx = gl_context()
     renderer = InsertionRenderer(ctx)
     try:
         renderer.set_scene(scene)
         quality = FULL if args.quality == "full" else DRAGGING
-        spec = export.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
+        spec = views.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
         meta = {"input": args.input, "object": args.object, "material": obj.material.as_text(),
                 "scale": f"{obj.scale:g}", "fusion": args.fusion}
         if waypoints is None:
             view, size = spec.build(scene, obj.bounding_sphere()[0])
             out = renderer.render_view([obj], view, size, quality, args.fusion)
-            files = export.write_passes(out, args.out, args.exposure, meta)
+            files = views.write_passes(out, args.out, args.exposure, meta)
             print(f"wrote {', '.join(files)} ({size[0]}x{size[1]}, {time.perf_counter() - t0:.1f} s)")
             return 0
         from phyir.insert import placement
@@ -104,11 +107,11 @@ def run(args: argparse.Namespace) -> int:
         frames = []
         view = size = None
         for u, v in points:
-            export.place_object(obj, scene, at=(u - 0.5, v - 0.5), normal=normal)
+            views.place_object(obj, scene, at=(u - 0.5, v - 0.5), normal=normal)
             if view is None or spec.kind == "equirect":
                 view, size = spec.build(scene, obj.bounding_sphere()[0])
             frames.append(renderer.render_view([obj], view, size, quality, args.fusion))
-        stats = export.write_animation(frames, args.out, args.exposure)
+        stats = views.write_animation(frames, args.out, args.exposure)
         print(f"wrote {len(frames)} frames, {args.out.rsplit('.', 1)[0]}.gif; static background change "
               f"{stats['static_background_change']:.2e}, object step {stats['object_step']:.3f} "
               f"({time.perf_counter() - t0:.1f} s)")

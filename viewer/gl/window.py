@@ -43,6 +43,17 @@ def pyopengl_is_egl() -> bool:
                              type(sys.modules["OpenGL.platform"].PLATFORM).__name__ == "EGLPlatform")
 
 
+def gl_context() -> moderngl.Context:
+    """A standalone OpenGL 3.3 context through EGL (``phyir insert``); :class:`~phyir.errors.PhyIRError`
+    in one line when there is none."""
+    from phyir.errors import PhyIRError
+
+    try:
+        return moderngl.create_standalone_context(backend="egl", require=330)
+    except Exception as e:  # noqa: BLE001 - any driver failure means no headless GL here
+        raise PhyIRError(f"cannot create a headless OpenGL context (EGL): {str(e).splitlines()[0]}") from None
+
+
 def _finish_without_gil(ctx: moderngl.Context) -> None:
     """``glFinish`` through PyOpenGL, whose ctypes call drops the GIL while it waits (moderngl's
     ``finish`` holds it and stalls the worker thread meanwhile)."""

@@ -2,7 +2,8 @@
 surfaces, the ImGuizmo gizmo and export (docs/insertion.md).
 
 :class:`ObjectsPanel` owns the objects and an :class:`viewer.insertion.InsertionRenderer` whose
-:class:`viewer.insertion.InsertionPass` is the first overlay pass of the app's renderer.  Its methods
+:class:`viewer.insertion.InsertionPass` (``hook``) the app puts first among its renderer's overlay
+passes.  Its methods
 are what the UI calls (and what tests and scripts call): ``add``, ``drop_at``, ``duplicate``,
 ``delete``, ``set_material``, ``begin_drag``/``drag_to``/``end_drag``, ``export``.  While dragging the
 pass draws at the cheaper quality; the frame after the mouse is released redraws at full quality.
@@ -11,6 +12,7 @@ pass draws at the cheaper quality; the frame after the mouse is released redraws
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import os
 
@@ -19,9 +21,9 @@ import torch
 
 from phyir.errors import PhyIRError
 from phyir.insert import placement
-from phyir.insert.objects import PRESETS, PRIMITIVES, Material, SceneObject, object_mesh
+from phyir.insert.objects import PRESETS, PRIMITIVES, ObjectMaterial, SceneObject, object_mesh
+from phyir.insert.views import EquirectView, PerspectiveView, write_passes
 from viewer.insertion import FUSIONS, InsertionPass, InsertionRenderer
-from viewer.view import PerspectiveView
 
 DEFAULT_SIZE = 0.25  # metres: primitives are unit-size, added ones start at this scale
 
@@ -31,7 +33,6 @@ class ObjectsPanel:
         self.app = app
         self.insertion = InsertionRenderer(app.ctx)
         self.hook = InsertionPass(self.insertion)
-        app.renderer.overlay_passes.insert(0, self.hook)
         self.selected: int | None = None
         self.drop_mode = False  # clicks in the view drop the selected object (or a new sphere)
         self.new_kind = "sphere"
@@ -70,7 +71,7 @@ class ObjectsPanel:
         self.app.request_redraw()
 
     # -- editing (what the panel's buttons call) ------------------------------------------------
-    def add(self, spec: str = "sphere", material: Material | None = None, scale: float | None = None,
+    def add(self, spec: str = "sphere", material: ObjectMaterial | None = None, scale: float | None = None,
             at: tuple[float, float] | None = None) -> SceneObject:
         """Add a primitive or mesh file; at panorama (u, v) if given, else in front of the camera."""
         if not self.sync():
@@ -113,7 +114,7 @@ class ObjectsPanel:
         self.objects[index].visible = bool(visible)
         self._changed()
 
-    def set_material(self, index: int, material: Material | str) -> None:
+    def set_material(self, index: int, material: ObjectMaterial | str) -> None:
         m = copy.deepcopy(PRESETS[material]) if isinstance(material, str) else material
         self.objects[index].material = m
         self._changed()
@@ -186,10 +187,8 @@ class ObjectsPanel:
 
     # -- export ---------------------------------------------------------------------------------
     def export(self, path: str) -> list[str]:
-        """The equirect composite at the panorama's resolution: EXR passes + PNG (viewer.export)."""
-        from viewer.export import write_passes
-        from viewer.view import EquirectView
-
+        """The equirect composite at the panorama's resolution: EXR passes + PNG
+        (:func:`phyir.insert.views.write_passes`)."""
         if not self.sync():
             raise PhyIRError("nothing to export: the scene has no depth and probes yet")
         H, W = self.scene().size
@@ -200,8 +199,7 @@ class ObjectsPanel:
         return files
 
     def release(self) -> None:
-        if self.hook in self.app.renderer.overlay_passes:
-            self.app.renderer.overlay_passes.remove(self.hook)
+        """Free the insertion renderer's GL resources (the app has taken ``hook`` out of its passes)."""
         self.insertion.release()
 
     # -- imgui ----------------------------------------------------------------------------------
@@ -287,7 +285,7 @@ class ObjectsPanel:
         ch2, rough = imgui.slider_float("Roughness", m.roughness, 0.0, 1.0)
         ch3, metal = imgui.slider_float("Metalness", m.metallic, 0.0, 1.0)
         if ch or ch2 or ch3:
-            self.set_material(i, Material(tuple(float(c) for c in col), float(rough), float(metal)))
+            self.set_material(i, ObjectMaterial(tuple(float(c) for c in col), float(rough), float(metal)))
         ch, size = imgui.slider_float("Scale", obj.scale, 0.01, 5.0, "%.3f", imgui.SliderFlags_.logarithmic)
         if ch:
             self.set_scale(i, size)
@@ -312,7 +310,7 @@ class ObjectsPanel:
         g.set_drawlist(imgui.get_window_draw_list())
         g.set_rect(*rect_logical)
         obj = self.objects[self.selected]
-        colmajor = lambda m: g.Matrix16(list(np.asarray(m, np.float64).T.reshape(-1)))  # noqa: E731
+        colmajor = functools.partial(_column_major, g)
         model = colmajor(obj.model_matrix())
         op = {"translate": g.OPERATION.translate, "rotate": g.OPERATION.rotate, "scale": g.OPERATION.scale}
         snap = {"translate": 0.05, "rotate": 15.0, "scale": 0.1}[self.gizmo_op]
@@ -335,3 +333,8 @@ class ObjectsPanel:
             fn()
         except PhyIRError as e:
             self.app.note("error", str(e))
+
+
+def _column_major(guizmo, m: np.ndarray):
+    """A 4x4 matrix as ImGuizmo's column-major ``Matrix16``."""
+    return guizmo.Matrix16(list(np.asarray(m, np.float64).T.reshape(-1)))

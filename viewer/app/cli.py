@@ -1,0 +1,218 @@
+"""``phyir-view``'s command line: open a file in an :class:`~viewer.app.App`, then run the window,
+save one screenshot or print frame times (``--bench``)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+from phyir.errors import PhyIRError
+from viewer.app.common import gl_current
+from viewer.app.core import App
+from viewer.gl import window as surfaces
+from viewer.layers import LAYERS
+from viewer.renderer import COLORMAPS, TONEMAPS
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 1280x720), got {text!r}") from None
+    if not (64 <= w <= 8192 and 64 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"window size {w}x{h} out of range (64..8192)")
+    return w, h
+
+
+def _uv(text: str) -> tuple[float, float]:
+    try:
+        u, v = (float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected U,V (panorama column,row), got {text!r}") from None
+    return u, v
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="phyir-view",
+        description="Inspect an indoor panorama and what PhyIR infers from it (layers, light probes).")
+    p.add_argument("path", nargs="?", help="panorama (.hdr/.exr/.png/.jpg) or scene file (.exr); "
+                                           "default: the demo scene")
+    p.add_argument("--layer", choices=LAYERS, help="layer to show")
+    p.add_argument("--probe", type=_uv, action="append", default=[], metavar="U,V",
+                   help="pin the probe at panorama column U, row V (repeatable)")
+    p.add_argument("--view", choices=("equirect", "perspective"), help="view")
+    p.add_argument("--yaw", type=float, help="perspective view: yaw in degrees (toward +x)")
+    p.add_argument("--pitch", type=float, help="perspective view: pitch in degrees (up)")
+    p.add_argument("--fov", type=float, help="perspective view: vertical field of view in degrees")
+    p.add_argument("--zoom", type=float, help="equirect view: screen pixels per panorama pixel (default fit)")
+    p.add_argument("--center", type=_uv, metavar="U,V", help="equirect view: panorama point at the centre")
+    p.add_argument("--exposure", type=float, help="exposure in EV")
+    p.add_argument("--tonemap", choices=TONEMAPS, help="tone map of HDR layers")
+    p.add_argument("--colormap", choices=COLORMAPS, help="colour map of scalar layers")
+    p.add_argument("--compare", action="store_true",
+                   help="treat the file's layers as ground truth: predict all layers and compare "
+                        "(automatic for complete synthetic scenes)")
+    p.add_argument("--show", choices=("prediction", "truth"),
+                   help="with ground truth: which layers to show (key G)")
+    p.add_argument("--gt", metavar="SCENE", help="ground-truth scene file to compare with")
+    p.add_argument("--no-model", action="store_true", help="don't run the model (show the file's layers)")
+    p.add_argument("--weights", metavar="FILE", help="model weights (default: the shipped ones)")
+    p.add_argument("--device", help="torch device for the model (default: CUDA when available)")
+    p.add_argument("--screenshot", metavar="OUT.png", help="render once, save a PNG and exit")
+    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="window size (default 1400x820)")
+    p.add_argument("--headless", action="store_true",
+                   help="render through EGL without a window (with --screenshot)")
+    p.add_argument("--no-ui", action="store_true", help="with --screenshot: only the view, no panels")
+    p.add_argument("--timeout", type=float, default=600.0,
+                   help="with --screenshot: longest wait for loading and the model (s)")
+    p.add_argument("--threads", type=int, help="torch threads for inference (default: cores - 1)")
+    p.add_argument("--bench", action="store_true",
+                   help="print frame times (idle view, and while the model runs) and exit")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    scripted = bool(args.screenshot or args.bench)
+    if args.headless and not scripted:
+        print("phyir-view: --headless needs --screenshot OUT.png (or --bench)", file=sys.stderr)
+        return 2
+    headless = args.headless or (scripted and not surfaces.has_display())
+    if not headless and not surfaces.has_display():
+        print("phyir-view: no display (DISPLAY/WAYLAND_DISPLAY unset); use --screenshot OUT.png "
+              "[--headless] to render without a window", file=sys.stderr)
+        return 2
+    path = args.path if args.path is not None else _demo_path()
+    try:
+        app = App(args.size or ((1280, 720) if scripted else (1400, 820)), headless=headless,
+                  ui=not args.no_ui, visible=not scripted, threads=args.threads,
+                  recent=False if scripted else None, run_model=not args.no_model,
+                  weights=args.weights, device=args.device)
+    except Exception as e:  # noqa: BLE001 - no GL: say so in one line
+        print(f"phyir-view: cannot create an OpenGL 3.3 context: {e}", file=sys.stderr)
+        return 2
+    try:
+        gt = None
+        if args.gt:
+            from phyir import io
+
+            gt = io.load_scene(args.gt)
+        app.open(path, gt=gt, compare=True if args.compare else None)
+        if args.bench:
+            return _bench(app, args)
+        if not scripted:
+            _apply_args(app, args, wait=False)
+            app.run()
+            return 0
+        if not app.wait_idle(args.timeout):
+            print(f"phyir-view: {path}: still loading after {args.timeout:g} s", file=sys.stderr)
+            return 2
+        _apply_args(app, args, wait=True)
+        for _ in range(3):  # imgui lays windows out over a couple of frames
+            app.frame()
+        app.screenshot(args.screenshot)
+        if app.error:
+            print(f"phyir-view: {app.error}", file=sys.stderr)
+            return 2
+        return 0
+    except PhyIRError as e:
+        print(f"phyir-view: {e}", file=sys.stderr)
+        return 2
+    finally:
+        app.close()
+
+
+def _apply_args(app: App, args, wait: bool) -> None:
+    if args.layer:
+        if wait and args.layer not in app.available():
+            raise PhyIRError(f"{app.name}: layer {args.layer!r} is not available "
+                             f"(have: {', '.join(app.available()) or 'none'})")
+        app.set_layer(args.layer)
+    if args.view:
+        app.set_view(args.view)
+    persp = {k: v for k, v in (("fov", args.fov), ("yaw", args.yaw and math.radians(args.yaw)),
+                                ("pitch", args.pitch and math.radians(args.pitch))) if v is not None}
+    if persp:
+        app.views["perspective"].update(**persp)
+    if wait and (args.zoom or args.center):
+        eq = app.views["equirect"]
+        if args.zoom:
+            eq.zoom_about(args.zoom / eq.zoom, app.view_size())
+        if args.center:
+            eq.center = args.center
+    if args.show:
+        app.set_source(args.show == "truth")
+    if args.exposure is not None:
+        app.set_exposure(args.exposure)
+    if args.tonemap:
+        app.set_tonemap(args.tonemap)
+    if args.colormap:
+        for name in app.scalar:
+            app.set_colormap(args.colormap, name)
+    if wait:
+        for u, v in args.probe:
+            app.pin_probe(u, v)
+
+
+def _bench(app: App, args) -> int:
+    """Frame times while the job runs, then of the idle view: the view pass alone, whole frames
+    that redraw the view (exposure nudged each frame) and whole frames that reuse it (UI only)."""
+    app.sync_parts = True  # each part waits for its GL work: the longest frame's parts say where it went
+    ok = app.wait_idle(args.timeout)
+    app.sync_parts = False
+    during, n_during, parts = app.job_max_frame, app.job_frames, app.job_max_parts
+    for _ in range(3):
+        app.frame()
+    ev = app.hdr.exposure
+    redrawn = []
+    for k in range(30):
+        app.set_exposure(ev + 1e-3 * (k % 2))
+        redrawn.append(app.frame())
+    app.set_exposure(ev)
+    app.frame()
+    cached = sorted(app.frame() for _ in range(30))
+    redrawn.sort()
+    x, y, w, h = app.view_rect()
+    passes = sorted(_time_view_pass(app) for _ in range(30))
+    print(f"{app.name}: view {w}x{h} px, panorama {app.size[1]}x{app.size[0]}, layer {app.layer}, "
+          f"GL {app.ctx.info['GL_RENDERER']}")
+    print(f"view pass alone: median {_median_ms(passes):.1f} ms, max {1000 * passes[-1]:.1f} ms")
+    print(f"whole frame redrawing the view: median {_median_ms(redrawn):.1f} ms, "
+          f"max {1000 * redrawn[-1]:.1f} ms")
+    print(f"whole frame reusing the view (UI changes only): median {_median_ms(cached):.1f} ms, "
+          f"max {1000 * cached[-1]:.1f} ms")
+    print(f"while loading/inferring: longest frame {1000 * during:.1f} ms over {n_during} frames "
+          f"(job {app.timings.get('job', float('nan')):.1f} s: {_fmt_timings(app.timings)})")
+    print("  its parts, wall (UI-thread CPU) ms: " +
+          ", ".join(f"{k} {1000 * w:.1f} ({1000 * c:.1f})" for k, (w, c) in parts.items()))
+    return 0 if ok else 2
+
+
+@gl_current
+def _time_view_pass(app: App) -> float:
+    target, spec = app.surface.target(), app.frame_spec()
+    fw, fh = app.surface.framebuffer_size
+    app.ctx.finish()
+    t0 = time.perf_counter()
+    app.renderer.render(target, app.view_rect(), spec, fb_size=(fw, fh))
+    app.ctx.finish()
+    return time.perf_counter() - t0
+
+
+def _median_ms(times: list[float]) -> float:
+    """The median of sorted ``times`` (s), in milliseconds."""
+    return 1000 * times[len(times) // 2]
+
+
+def _fmt_timings(t: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.2f} s" for k, v in t.items() if k != "job")
+
+
+def _demo_path() -> str:
+    from phyir.synth import demo_scene_path
+
+    return os.fspath(demo_scene_path())

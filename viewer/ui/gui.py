@@ -1,0 +1,157 @@
+"""The imgui interface: :class:`Gui` owns the imgui context and its frame; the menu bar
+(``menu_bar``), side panel (``side_panel``), status bar (``status_bar``) and the view's mouse and
+keyboard handling (``input``) are the parts it is made of.
+
+Everything here only reads the :class:`~viewer.app.App`'s state and calls its methods, so a click
+and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL calls
+use framebuffer pixels (``* scale`` on high-DPI screens).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from viewer.ui.input import ViewInput
+from viewer.ui.menu_bar import MenuBar
+from viewer.ui.side_panel import SidePanel
+from viewer.ui.status_bar import StatusBar
+from viewer.ui.widgets import PANEL_WIDTH, imgui
+
+if TYPE_CHECKING:
+    from viewer.app import App
+
+__all__ = ["PANEL_WIDTH", "Gui"]
+
+
+class Gui(MenuBar, ViewInput, SidePanel, StatusBar):
+    """The imgui context and its frame; the interface is built by the parts it is made of."""
+
+    def __init__(self, app: App):
+        self.app = app
+        self.ctx = imgui.create_context()
+        imgui.set_current_context(self.ctx)  # create_context keeps an existing context current
+        self.io = imgui.get_io()
+        self.io.set_ini_filename("")  # no imgui.ini next to the user's files
+        self.scale = max(1.0, app.surface.content_scale)
+        style = imgui.get_style()
+        style.scale_all_sizes(self.scale)
+        style.font_scale_dpi = self.scale
+        style.window_rounding = 0.0
+        if app.window is not None:
+            from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
+
+            self.impl = GlfwRenderer(app.window, attach_callbacks=False)
+            self._install_callbacks()
+        else:
+            from imgui_bundle.python_backends.opengl_backend_programmable import ProgrammablePipelineRenderer
+
+            self.impl = ProgrammablePipelineRenderer()
+        self._last = time.perf_counter()
+        self._dialog = None          # portable_file_dialogs.open_file in flight
+        self._path_popup = False     # the fallback "open path" popup
+        self._path_text = ""
+        self._dragged = False
+        self._show_help = False
+        self._lut_cache: dict[str, np.ndarray] = {}
+        self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
+        self.quit_requested = False
+        self.scroll_to_pin: int | None = None
+
+    # -- frame --------------------------------------------------------------------------------
+    @property
+    def fb_scale(self) -> float:
+        return self.app.surface.scale
+
+    def bar_height(self) -> float:
+        """Height of the menu bar and of the status bar (logical px)."""
+        return 13.0 * self.scale + 2 * 3.0 * self.scale + 2
+
+    def view_rect(self, fw: int, fh: int) -> tuple[int, int, int, int]:
+        s = self.fb_scale
+        top = math.ceil(self.bar_height() * s)
+        bottom = math.ceil(self.bar_height() * s)
+        right = math.ceil(PANEL_WIDTH * self.scale * s)
+        return 0, top, max(1, fw - right), max(1, fh - top - bottom)
+
+    def begin_frame(self) -> None:
+        io = self.io
+        if self.app.window is not None:
+            self.impl.process_inputs()
+        else:
+            w, h = self.app.surface.size
+            io.display_size = imgui.ImVec2(w, h)
+            io.display_framebuffer_scale = imgui.ImVec2(self.fb_scale, self.fb_scale)
+            now = time.perf_counter()
+            io.delta_time = max(1e-4, now - self._last)
+            self._last = now
+        imgui.new_frame()
+
+    def end_frame(self, target) -> None:
+        target.use()
+        imgui.render()
+        _ = self.app.ctx.error  # drop GL errors moderngl left behind; PyOpenGL would raise on them
+        self.impl.render(imgui.get_draw_data())
+
+    def animating(self) -> bool:
+        return self._dialog is not None
+
+    def make_current(self) -> None:
+        imgui.set_current_context(self.ctx)
+
+    def shutdown(self) -> None:
+        self.impl.shutdown()
+        imgui.destroy_context(self.ctx)
+
+    # -- callbacks (window) ---------------------------------------------------------------------
+    def _install_callbacks(self) -> None:
+        import glfw
+
+        impl, app, win = self.impl, self.app, self.app.window
+
+        def wrap(fn):
+            def cb(*args):
+                fn(*args)
+                app.request_redraw()
+            return cb
+
+        glfw.set_key_callback(win, wrap(impl.keyboard_callback))
+        glfw.set_char_callback(win, wrap(impl.char_callback))
+        glfw.set_cursor_pos_callback(win, wrap(lambda w, x, y: self.io.add_mouse_pos_event(x, y)))
+        glfw.set_cursor_enter_callback(win, wrap(
+            lambda w, entered: None if entered else self.io.add_mouse_pos_event(-3.4e38, -3.4e38)))
+        glfw.set_mouse_button_callback(win, wrap(impl.mouse_button_callback))
+        glfw.set_scroll_callback(win, wrap(impl.scroll_callback))
+        glfw.set_window_size_callback(win, wrap(lambda *a: None))
+        glfw.set_framebuffer_size_callback(win, wrap(lambda *a: None))
+        glfw.set_window_refresh_callback(win, wrap(lambda *a: None))
+        glfw.set_window_focus_callback(win, wrap(lambda *a: None))
+        glfw.set_window_content_scale_callback(win, wrap(lambda w, sx, sy: self._rescale(max(sx, sy))))
+
+    def _rescale(self, scale: float) -> None:
+        scale = max(1.0, scale)
+        style = imgui.get_style()
+        style.scale_all_sizes(scale / self.scale)
+        style.font_scale_dpi = scale
+        self.scale = scale
+
+    # -- the interface --------------------------------------------------------------------------
+    def build(self) -> None:
+        app = self.app
+        fw, fh = app.surface.framebuffer_size
+        s = self.fb_scale
+        W, H = fw / s, fh / s  # logical
+        self._menu_bar()
+        self._view_window(fw, fh)
+        self._side_panel(W, H)
+        self._status_bar(W, H)
+        self._error_banner(fw, fh)
+        self._open_popups()
+        self._poll_dialog()
+        if not self.io.want_capture_keyboard and not self.io.want_text_input:
+            self._keys()
+        if self._show_help:
+            self._help_window()

@@ -1,0 +1,157 @@
+"""The menu bar and what its File and Help menus open: the file dialog or the "open path"
+popup, screenshots, quitting and the keys-and-mouse help."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+
+from viewer.layers import KEYS, LAYERS
+from viewer.ui.widgets import imgui
+
+
+class MenuBar:
+    """Part of :class:`viewer.ui.gui.Gui`: the menu bar, file dialogs and the help window."""
+
+    def _menu_bar(self) -> None:
+        app = self.app
+        if not imgui.begin_main_menu_bar():
+            return
+        if imgui.begin_menu("File"):
+            if imgui.menu_item_simple("Open...", "Ctrl+O"):
+                self.open_dialog()
+            if imgui.menu_item_simple("Open path..."):
+                self._path_popup = True
+            recent = app.recent.files if app.recent is not None else []
+            if imgui.begin_menu("Recent files", bool(recent)):
+                for f in recent:
+                    if imgui.menu_item_simple(f):
+                        app.open(f)
+                imgui.end_menu()
+            imgui.separator()
+            if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
+                self._save_screenshot()
+            if imgui.menu_item_simple("Quit", "Ctrl+Q"):
+                self._quit()
+            imgui.end_menu()
+        if imgui.begin_menu("View"):
+            for kind, key in (("equirect", "V"), ("perspective", "V")):
+                if imgui.menu_item_simple(kind.capitalize(), key, app.view_kind == kind):
+                    app.set_view(kind)
+            imgui.separator()
+            if imgui.menu_item_simple("Fit", "F"):
+                app.set_view("equirect")
+                app.fit()
+            if imgui.menu_item_simple("1:1", "Z"):
+                app.set_view("equirect")
+                app.one_to_one()
+            imgui.end_menu()
+        if imgui.begin_menu("Layer"):
+            avail = app.available()
+            for name, key in zip(LAYERS, KEYS):
+                if imgui.menu_item_simple(name, key, app.layer == name, name in avail):
+                    app.set_layer(name)
+            if app.gt is not None:
+                imgui.separator()
+                if imgui.menu_item_simple("Show ground truth", "G", app.show_gt):
+                    app.set_source(not app.show_gt)
+            imgui.end_menu()
+        if imgui.begin_menu("Model"):
+            can = app.path is not None and not app.busy
+            if imgui.menu_item_simple("Predict all layers and compare with the file's", enabled=can):
+                app.open(app.path, compare=True)
+            if imgui.menu_item_simple("Cancel", "Esc", enabled=app.busy):
+                app.cancel()
+            imgui.end_menu()
+        if imgui.begin_menu("Help"):
+            if imgui.menu_item_simple("Keys and mouse", "H"):
+                self._show_help = True
+            imgui.end_menu()
+        imgui.end_main_menu_bar()
+
+    def _open_popups(self) -> None:
+        app = self.app
+        if self._path_popup:
+            imgui.open_popup("Open path")
+            self._path_popup = False
+        if imgui.begin_popup_modal("Open path", None, imgui.WindowFlags_.always_auto_resize)[0]:
+            imgui.text("Panorama (.hdr, .exr, .png, .jpg) or scene file (.exr):")
+            if imgui.is_window_appearing():
+                imgui.set_keyboard_focus_here()
+            imgui.set_next_item_width(520 * self.scale)
+            enter, self._path_text = imgui.input_text("##path", self._path_text,
+                                                      imgui.InputTextFlags_.enter_returns_true)
+            if (imgui.button("Open") or enter) and self._path_text.strip():
+                app.open(os.path.expanduser(self._path_text.strip()))
+                imgui.close_current_popup()
+            imgui.same_line()
+            if imgui.button("Cancel") or imgui.is_key_pressed(imgui.Key.escape):
+                imgui.close_current_popup()
+            imgui.end_popup()
+
+    def open_dialog(self) -> None:
+        """The system's file dialog when one is installed, else the "open path" popup."""
+        if sys.platform.startswith("linux") and not any(shutil.which(t) for t in
+                                                        ("zenity", "kdialog", "qarma", "matedialog")):
+            self._path_popup = True
+            return
+        from imgui_bundle import portable_file_dialogs as pfd
+
+        start = os.path.dirname(self.app.path) if self.app.path else os.getcwd()
+        filters = ["Panoramas and scenes", "*.hdr *.exr *.png *.jpg *.jpeg", "All files", "*"]
+        self._dialog = pfd.open_file("Open a panorama or scene", start, filters)
+
+    def _poll_dialog(self) -> None:
+        if self._dialog is not None and self._dialog.ready(0):
+            files = self._dialog.result()
+            self._dialog = None
+            if files:
+                self.app.open(files[0])
+
+    def _save_screenshot(self) -> None:
+        app = self.app
+        stem = os.path.splitext(app.path or "phyir-view")[0]
+        out = f"{stem}.{app.layer}.png"
+        try:
+            app.screenshot(out)
+            app.note("info", f"saved {out}")
+        except Exception as e:  # noqa: BLE001 - e.g. a read-only folder: report, keep running
+            app.note("error", f"cannot save {out}: {e}")
+
+    def _quit(self) -> None:
+        self.quit_requested = True
+        if self.app.window is not None:
+            import glfw
+
+            glfw.set_window_should_close(self.app.window, True)
+
+    def _help_window(self) -> None:
+        imgui.set_next_window_size(imgui.ImVec2(430 * self.scale, 0), imgui.Cond_.appearing)
+        opened, keep = imgui.begin("Keys and mouse", True)
+        if opened:
+            for k, t in HELP:
+                imgui.text(f"{k:<16}{t}")
+        imgui.end()
+        if not keep:
+            self._show_help = False
+
+
+HELP = (
+    ("1-9, 0, -", "layers: " + ", ".join(LAYERS)),
+    ("G", "prediction / ground truth"),
+    ("E / Shift+E", "exposure +/- 0.5 EV"),
+    ("O / Shift+O", "offset +/- 0.05"),
+    ("R", "reset exposure and offset"),
+    ("T / C", "next tone map / colour map"),
+    ("F / Z", "fit / 1:1 (equirect view)"),
+    ("V", "equirect / perspective view"),
+    ("drag", "pan (equirect) / look around"),
+    ("wheel", "zoom (equirect) / field of view"),
+    ("click", "pin the probe under the mouse"),
+    ("Backspace", "remove the last probe"),
+    ("Esc", "dismiss the error / cancel the model"),
+    ("Ctrl+O", "open a file (or drop it on the window)"),
+    ("F12", "save a screenshot next to the file"),
+    ("H", "this help"),
+)

@@ -1,0 +1,265 @@
+"""The side panel: layers, display settings, view controls, the read-out under the mouse, the
+pinned probes, the inserted objects and the messages."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import torch
+
+from phyir import pano
+from viewer.layers import KEYS, LAYERS, SPECS
+from viewer.renderer import COLORMAPS, TONEMAPS, colormap_lut
+from viewer.ui.widgets import FLAGS_FIXED, LEVEL_COLOURS, PANEL_WIDTH, col32, fmt_number, fmt_value, imgui
+
+
+class SidePanel:
+    """Part of :class:`viewer.ui.gui.Gui`: the panel right of the view."""
+
+    def _side_panel(self, W: float, H: float) -> None:
+        app = self.app
+        top = self.bar_height()
+        pw = PANEL_WIDTH * self.scale
+        imgui.set_next_window_pos(imgui.ImVec2(W - pw, top))
+        imgui.set_next_window_size(imgui.ImVec2(pw, H - 2 * top))
+        imgui.begin("##panel", None, FLAGS_FIXED)
+        imgui.text(app.name or "(no file)")
+        if app.busy:
+            frac, text = app.progress or (None, "")
+            if frac is None:  # indeterminate: a moving bar
+                frac = (time.monotonic() * 0.5) % 1.0
+            imgui.progress_bar(frac, imgui.ImVec2(-60 * self.scale, 0), text or "working")
+            imgui.same_line()
+            if imgui.button("Cancel"):
+                app.cancel()
+        if imgui.collapsing_header("Layers", imgui.TreeNodeFlags_.default_open):
+            self._layers()
+        if imgui.collapsing_header("Display", imgui.TreeNodeFlags_.default_open):
+            self._display()
+        if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+            self._view_controls()
+        if imgui.collapsing_header("Read-out", imgui.TreeNodeFlags_.default_open):
+            self._readout()
+        if imgui.collapsing_header(f"Probes ({len(app.pins)})###probes", imgui.TreeNodeFlags_.default_open):
+            self._probes()
+        if imgui.collapsing_header(f"Objects ({len(app.objects.objects)})###objects"):
+            app.objects.build_ui()
+        if imgui.collapsing_header("Messages"):
+            for m in list(app.messages)[::-1]:
+                imgui.push_text_wrap_pos(0)
+                imgui.text_colored(imgui.ImVec4(*LEVEL_COLOURS.get(m.level, (0.8, 0.8, 0.8, 1))), m.text)
+                imgui.pop_text_wrap_pos()
+        imgui.end()
+
+    def _layers(self) -> None:
+        app = self.app
+        avail = app.available()
+        if app.gt is not None:
+            if imgui.radio_button("prediction", not app.show_gt):
+                app.set_source(False)
+            imgui.same_line()
+            if imgui.radio_button("ground truth (G)", app.show_gt):
+                app.set_source(True)
+        for k, (name, key) in enumerate(zip(LAYERS, KEYS)):
+            if k % 2:
+                imgui.same_line(170 * self.scale)
+            present = name in avail
+            if not present:
+                imgui.begin_disabled()
+            if imgui.radio_button(f"{key} {name}", app.layer == name):
+                app.set_layer(name)
+            if not present:
+                imgui.end_disabled()
+            if imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+                why = "" if present else (" (computing...)" if app.busy else " (not available)")
+                imgui.set_tooltip(SPECS[name].help + why)
+
+    def _display(self) -> None:
+        app = self.app
+        spec = SPECS[app.layer]
+        if spec.kind == "hdr":
+            ch, ev = imgui.slider_float("exposure (E)", app.hdr.exposure, -12.0, 12.0, "%+.1f EV")
+            if ch:
+                app.set_exposure(ev)
+            ch, off = imgui.slider_float("offset (O)", app.hdr.offset, -1.0, 1.0, "%+.3f")
+            if ch:
+                app.set_offset(off)
+            ch, i = imgui.combo("tone map (T)", TONEMAPS.index(app.hdr.tonemap),
+                                ["sRGB", "ACES", "false colour"])
+            if ch:
+                app.set_tonemap(TONEMAPS[i])
+            if app.hdr.tonemap == "false":
+                lo, hi = app.hdr.false_range
+                self._colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV")
+        elif spec.kind == "scalar":
+            sd = app.scalar[app.layer]
+            ch, i = imgui.combo("colour map (C)", COLORMAPS.index(sd.colormap), list(COLORMAPS))
+            if ch:
+                app.set_colormap(COLORMAPS[i])
+            lo, hi = sd.range
+            speed = max(1e-3, (hi - lo) / 200)
+            ch, lo2, hi2 = imgui.drag_float_range2("range", lo, hi, speed, 0.0, 0.0, "%.4g", "%.4g")
+            if ch and hi2 > lo2:
+                app.set_range(lo2, hi2)
+            imgui.same_line()
+            if imgui.small_button("auto"):
+                app.set_range(None)
+            self._colour_bar(sd.colormap, fmt_number(lo) + spec.unit, fmt_number(hi) + spec.unit)
+        else:
+            imgui.push_text_wrap_pos(0)
+            note = "normal n shown as 0.5 n + 0.5 (x red, y green, z blue)" if spec.kind == "normal" \
+                else "base colour shown as sRGB"
+            imgui.text_disabled(note)
+            imgui.pop_text_wrap_pos()
+
+    def _colour_bar(self, name: str, lo: str, hi: str) -> None:
+        if name not in self._lut_cache:
+            self._lut_cache[name] = colormap_lut(name, 64)
+        lut = self._lut_cache[name]
+        dl = imgui.get_window_draw_list()
+        p = imgui.get_cursor_screen_pos()
+        w = imgui.get_content_region_avail().x
+        h = 10 * self.scale
+        n = len(lut)
+        for k, c in enumerate(lut):
+            x0, x1 = p.x + w * k / n, p.x + w * (k + 1) / n + 1
+            dl.add_rect_filled(imgui.ImVec2(x0, p.y), imgui.ImVec2(x1, p.y + h), col32(*c))
+        imgui.dummy(imgui.ImVec2(w, h))
+        imgui.text(lo)
+        imgui.same_line(max(0.0, w - imgui.calc_text_size(hi).x))
+        imgui.text(hi)
+
+    def _view_controls(self) -> None:
+        app = self.app
+        if imgui.radio_button("equirect", app.view_kind == "equirect"):
+            app.set_view("equirect")
+        imgui.same_line()
+        if imgui.radio_button("perspective (V)", app.view_kind == "perspective"):
+            app.set_view("perspective")
+        if app.view_kind == "equirect":
+            if imgui.button("Fit (F)"):
+                app.fit()
+            imgui.same_line()
+            if imgui.button("1:1 (Z)"):
+                app.one_to_one()
+            imgui.same_line()
+            imgui.text(f"zoom {100 * app.view.zoom:.0f}%")
+        else:
+            v = app.view
+            ch, fov = imgui.slider_float("field of view", v.fov, 10.0, 150.0, "%.0f deg")
+            if ch:
+                app.set_view(fov=fov)
+            imgui.text(f"yaw {math.degrees(v.yaw):+.1f} deg, pitch {math.degrees(v.pitch):+.1f} deg")
+            imgui.same_line()
+            if imgui.small_button("reset"):
+                app.set_view(yaw=0.0, pitch=0.0, fov=75.0)
+
+    def _readout(self) -> None:
+        app = self.app
+        if app.hover is None or app.size is None:
+            imgui.text_disabled("hover over the panorama; click to pin a probe")
+            return
+        u, v = app.hover
+        H, W = app.size
+        lon = 360 * u / W - 180
+        lat = 90 - 180 * v / H
+        d = self._direction(u, v)
+        imgui.text(f"pixel col {int(u)}, row {int(v)}   (u {u:.1f}, v {v:.1f})")
+        imgui.text(f"lon {lon:+.2f}, lat {lat:+.2f} deg")
+        imgui.text(f"dir ({d[0]:+.3f}, {d[1]:+.3f}, {d[2]:+.3f})")
+        sources = [("pred", app.arrays)] + ([("gt", app.gt_arrays)] if app.gt is not None else [])
+        flags = imgui.TableFlags_.borders_inner_h | imgui.TableFlags_.sizing_fixed_fit
+        if imgui.begin_table("values", 1 + len(sources), flags):
+            imgui.table_setup_column("layer")
+            for src, _ in sources:
+                title = "value" if len(sources) == 1 else ("predicted" if src == "pred" else "true")
+                imgui.table_setup_column(title)
+            imgui.table_headers_row()
+            vals = {src: app.pin_values(u, v, src) for src, _ in sources}
+            for name in LAYERS:
+                if not any(name in vals[src] for src, _ in sources):
+                    continue
+                imgui.table_next_row()
+                imgui.table_next_column()
+                imgui.text(name)
+                for src, _ in sources:
+                    imgui.table_next_column()
+                    imgui.text(fmt_value(vals[src][name]) if name in vals[src] else "-")
+            imgui.end_table()
+
+    def _direction(self, u: float, v: float) -> np.ndarray:
+        H, W = self.app.size
+        return pano.uv_to_dir(torch.tensor(u, dtype=torch.float64), torch.tensor(v, dtype=torch.float64),
+                              H, W).numpy()
+
+    def _probes(self) -> None:
+        app = self.app
+        if not app.pins:
+            imgui.text_disabled("click the view to pin a probe")
+            return
+        if imgui.small_button("remove all"):
+            while app.pins:
+                app.unpin()
+        remove = None
+        avail_w = imgui.get_content_region_avail().x
+        self.probe_rects.clear()
+        for k, pin in enumerate(app.pins):
+            imgui.push_id(k)
+            dl = imgui.get_window_draw_list()
+            p = imgui.get_cursor_screen_pos()
+            sz = imgui.get_text_line_height()
+            dl.add_rect_filled(p, imgui.ImVec2(p.x + sz, p.y + sz), col32(*pin.colour))
+            imgui.dummy(imgui.ImVec2(sz, sz))
+            imgui.same_line()
+            imgui.text(f"probe {k + 1} at col {pin.u:.1f}, row {pin.v:.1f}")
+            imgui.same_line()
+            if imgui.small_button("x"):
+                remove = k
+            pairs = [("pred", "predicted" if app.gt is not None else None)]
+            if pin.probe_gt is not None:
+                pairs.append(("gt", "true"))
+            if pin.probe is None and pin.probe_gt is None:
+                imgui.text_disabled("no light probes yet" + (" (computing...)" if app.busy else ""))
+            else:
+                h, w = (pin.probe if pin.probe is not None else pin.probe_gt).shape[1:]
+                cell = (avail_w - 8 * self.scale * (len(pairs) - 1)) / len(pairs)
+                f = max(1, int(cell * self.fb_scale // w))  # integer texel size: texels stay square
+                size = (w * f, h * f)
+                for n, (which, label) in enumerate(pairs):
+                    if n:
+                        imgui.same_line()
+                    imgui.begin_group()
+                    if label:
+                        imgui.text(label)
+                    tex = app.probe_image(pin, which, size)
+                    if tex is None:
+                        imgui.text_disabled("-")
+                    else:
+                        imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(size[0] / self.fb_scale,
+                                                                               size[1] / self.fb_scale),
+                                    imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
+                        mn, mx = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+                        self.probe_rects[(k, which)] = (mn.x, mn.y, mx.x, mx.y)
+                    imgui.end_group()
+                ch, ev = imgui.slider_float("probe EV", pin.exposure, -12.0, 12.0, "%+.1f EV")
+                if ch:
+                    app.set_pin_exposure(k, ev)
+            if self.scroll_to_pin == k:  # a new pin: bring its probe into view
+                imgui.set_scroll_here_y(1.0)
+                self.scroll_to_pin = None
+            if pin.block is not None:
+                imgui.text(f"grid cell (row {pin.block[0]}, col {pin.block[1]}), bilinear between cells")
+            if pin.position is not None:
+                x, y, z = pin.position
+                imgui.text(f"probe at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m")
+            if pin.point is not None:
+                imgui.text(f"surface at {np.linalg.norm(pin.point):.3f} m")
+            for name in ("normal", "albedo", "roughness", "metallic"):
+                if name in pin.surface:
+                    imgui.text(f"  {name}: {fmt_value(pin.surface[name])}")
+            imgui.separator()
+            imgui.pop_id()
+        if remove is not None:
+            app.unpin(remove)

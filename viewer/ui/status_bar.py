@@ -1,0 +1,57 @@
+"""The status bar (mouse position, value, frame time, the last message) and the error banner."""
+
+from __future__ import annotations
+
+from viewer.ui.widgets import ERROR_BG, FLAGS_FIXED, LEVEL_COLOURS, fmt_value, imgui
+
+
+class StatusBar:
+    """Part of :class:`viewer.ui.gui.Gui`: the bar under the view and the error banner over it."""
+
+    def _status_bar(self, W: float, H: float) -> None:
+        app = self.app
+        bh = self.bar_height()
+        imgui.set_next_window_pos(imgui.ImVec2(0, H - bh))
+        imgui.set_next_window_size(imgui.ImVec2(W, bh))
+        imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(6 * self.scale, 3 * self.scale))
+        imgui.begin("##status", None, FLAGS_FIXED | imgui.WindowFlags_.no_scrollbar)
+        parts = []
+        if app.hover is not None and app.size is not None:
+            u, v = app.hover
+            vals = app.pin_values(u, v).get(app.layer)
+            parts.append(f"col {int(u)} row {int(v)}")
+            if vals is not None:
+                parts.append(f"{app.layer} {fmt_value(vals)}")
+        if app.frame_times:
+            parts.append(f"frame {1000 * app.frame_times[-1]:.0f} ms")
+        if app.busy and app.job_frames:
+            parts.append(f"longest frame while busy {1000 * app.job_max_frame:.0f} ms")
+        last = app.messages[-1] if app.messages else None
+        imgui.text("   ".join(parts))
+        if last is not None:
+            imgui.same_line()
+            colour = LEVEL_COLOURS.get(last.level, (0.7, 0.7, 0.7, 1))
+            imgui.text_colored(imgui.ImVec4(*colour), "  " + last.text)
+        imgui.end()
+        imgui.pop_style_var()
+
+    def _error_banner(self, fw: int, fh: int) -> None:
+        app = self.app
+        if not app.error:
+            return
+        s = self.fb_scale
+        x, y, w, _ = app.view_rect()
+        imgui.set_next_window_pos(imgui.ImVec2(x / s + 10 * self.scale, y / s + 10 * self.scale))
+        imgui.set_next_window_size(imgui.ImVec2(w / s - 20 * self.scale, 0))
+        imgui.push_style_color(imgui.Col_.window_bg, imgui.ImVec4(*ERROR_BG))
+        flags = FLAGS_FIXED | imgui.WindowFlags_.always_auto_resize
+        flags |= imgui.WindowFlags_.no_focus_on_appearing
+        flags &= ~imgui.WindowFlags_.no_bring_to_front_on_focus  # over the view window
+        imgui.begin("##error", None, flags)
+        imgui.push_text_wrap_pos(0)
+        imgui.text(app.error)
+        imgui.pop_text_wrap_pos()
+        if imgui.small_button("dismiss"):
+            app.error = None
+        imgui.end()
+        imgui.pop_style_color()
