@@ -4,9 +4,10 @@
 :class:`viewer.renderer.Renderer`, see :class:`InsertionPass`) or a headless EGL
 context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per frame:
 
-1. each object's lighting (CPU, torch, only when it moved): the probe interpolated at its centre
-   (:class:`phyir.lighting.object_lighting.ProbeField`), its mip pyramid, exact irradiance map and dominant
-   lights placed in the room (:mod:`phyir.lighting.extract`), uploaded as small textures;
+1. each object's lighting (CPU, torch, only when it moved): the light at its centre
+   (:class:`phyir.lighting.at_point.LightAtPoint`: the panorama projected from the object, learned
+   probes where the camera did not see), its mip pyramid, exact irradiance map and dominant lights
+   placed in the room (:mod:`phyir.lighting.extract`), uploaded as small textures;
 2. each object is drawn into its own tile of an *impostor atlas* by a perspective camera at the
    panorama's centre aimed at it (``object.frag``: IBL with the BRDF of phyir.shading.brdf, parallax-corrected
    mirror reflections, scene-occludes-object test); every view (equirect, perspective, export) then
@@ -30,10 +31,10 @@ from phyir import pano
 from phyir.errors import PhyIRError
 from phyir.insert.objects import ObjectMaterial, SceneObject
 from phyir.insert.views import EquirectView, PerspectiveView, pixel_angle
+from phyir.lighting.at_point import LightAtPoint
 from phyir.lighting.object_lighting import (
     HALO,
     N_HALO,
-    ProbeField,
     irradiance_map,
     peak_samples,
     probe_mips,
@@ -65,7 +66,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self._objects: dict[int, ObjectGPU] = {}
         self._fbos: dict[str, tuple] = {}
         self.scene: PanoScene | None = None
-        self.field: ProbeField | None = None
+        self.field: LightAtPoint | None = None
         self.surface: DepthSurface | None = None
         table = prefilter.dfg_table().permute(1, 2, 0).contiguous().numpy()  # [R, n.v, 2]
         self.dfg = ctx.texture((table.shape[1], table.shape[0]), 2, table.astype(np.float32).tobytes(),
@@ -118,8 +119,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
                 raise PhyIRError(f"insertion needs the scene's {name} layer")
         self.release_scene()
         self.scene = scene
-        self.field = ProbeField(scene)
         self.surface = DepthSurface.from_scene(scene)
+        self.field = LightAtPoint(scene, surface=self.surface)  # the panorama's light, at the object
         normal = scene.normal if scene.normal is not None else pano.normals_from_depth(scene.depth.float())
         tex = self._scene_tex
         tex["scene_depth"] = self._equirect(scene.depth[0].float().numpy(), nearest=True)

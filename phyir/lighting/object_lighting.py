@@ -158,6 +158,8 @@ def peak_samples(probe: Tensor, max_texels: int = PEAK_TEXELS, threshold: float 
 class ProbeField:
     """A scene's probe grid as probes at 3D points, interpolated anywhere (see the module doc)."""
 
+    interpolates = True  # probes blended from elsewhere: near lights need the distance correction
+
     def __init__(self, scene: PanoScene, k: int = NEIGHBOURS):
         if scene.batched:
             raise SceneError("ProbeField: expected an unbatched scene")
@@ -371,16 +373,18 @@ def support_shadowed(probe: Tensor, residual: Tensor, centre: Tensor, radius: fl
     return ((radiance * keep) @ k.T / k.sum(1)).T.to(ambient.dtype)
 
 
-def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | None = None,
+def object_lighting(field, centre: Tensor, surface: DepthSurface | None = None,
                     max_lights: int = 4, radius: float = 0.0, steps: int = 32,
                     support: tuple[Tensor, Tensor] | None = None, probe: Tensor | None = None,
                     previous: ObjectLighting | None = None) -> ObjectLighting:
-    """The probe at ``centre`` (interpolated, its near lights corrected for the distance between
-    the probes and ``centre``), its maps and its placed dominant lights; ``radius``: the object's
-    bounding radius (for the reach points), ``steps``: depth-marching steps, ``support``: (point,
-    normal) of the surface the object rests on (:func:`support_shadowed`); ``probe``:
-    ``field.probe_at(centre)`` when the caller has it already; ``previous``: the same object's lighting
-    a moment ago (while it is dragged), whose lights are kept where they are (:func:`reuse_lights`)."""
+    """The probe at ``centre`` from ``field`` (a :class:`ProbeField`: interpolated, its near lights corrected
+    for the distance between the probes and ``centre``; or a
+    :class:`phyir.lighting.at_point.LightAtPoint`: computed at the point), its maps and its placed
+    dominant lights; ``radius``: the object's bounding radius (for the reach points), ``steps``: depth-
+    marching steps, ``support``: (point, normal) of the surface the object rests on
+    (:func:`support_shadowed`); ``probe``: ``field.probe_at(centre)`` when the caller has it already;
+    ``previous``: the same object's lighting a moment ago (while it is dragged), whose lights are kept
+    where they are (:func:`reuse_lights`)."""
     probe = field.probe_at(centre) if probe is None else probe
     lights, residual = extract_lights(probe, max_lights=max_lights)
     kept = None if previous is None else reuse_lights(lights, centre, radius, previous)
@@ -389,7 +393,8 @@ def object_lighting(field: ProbeField, centre: Tensor, surface: DepthSurface | N
         marched_from = centre.float()
     else:
         placed, reach, marched_from = kept
-    probe = correct_light_distance(field, centre, probe, placed)
+    if field.interpolates:
+        probe = correct_light_distance(field, centre, probe, placed)
     dirs, power, spec = peak_samples(probe)
     ambient, ambient_res = irradiance_at(probe, AXES), irradiance_at(residual, AXES)
     bounce = support_shadowed(probe, residual, centre, radius, support, ambient, placed)

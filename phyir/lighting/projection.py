@@ -250,6 +250,19 @@ class BrightSources:
         return self.pos.shape[1]
 
 
+FACING_COS = 0.2  # a visible surface faces the camera: normals turned further away are not trusted
+
+
+def facing_normals(normal: Tensor, points: Tensor, min_cos: float = FACING_COS) -> Tensor:
+    """Normals ``[3,...]`` of surface ``points`` the camera sees, with those that face away from the
+    camera (cos below ``min_cos``, impossible for a visible surface: a collapsed normal layer, a lamp
+    predicted as floor) replaced by the direction to the camera.  Keeps a light's power finite and
+    its emission toward the camera, where the camera did see it."""
+    to_cam = -_unit0(points)
+    ok = (normal * to_cam).sum(0, keepdim=True) >= min_cos
+    return torch.where(ok, normal, to_cam)
+
+
 def bright_sources(image: Tensor, depth: Tensor, normal: Tensor, factor: float = 8.0,
                    max_sources: int = 64) -> tuple[Tensor, BrightSources | None]:
     """Split ``image [3,H,W]`` into a base image and point sources for its bright part.
@@ -271,7 +284,7 @@ def bright_sources(image: Tensor, depth: Tensor, normal: Tensor, factor: float =
     excess = image * frac
     d = depth[0].float().clamp_min(1e-3)
     pts = pano.depth_to_points(d[None])
-    n = normal
+    n = facing_normals(normal, pts)
     cos_cam = ((n * pts).sum(0).abs() / d).clamp_min(0.1)
     area = omega * d * d / cos_cam
     e = excess * area  # [3,H,W] radiance x area
