@@ -51,7 +51,10 @@ def main() -> int:
     ins = InsertionRenderer(ctx)
     view_dir = torch.tensor([[0.3, -0.2, -1.0]])
     n, v, mask = sphere_gbuffer(view_dir, args.size)
-    rel = lambda a, b: float((a - b).abs().sum() / b.abs().sum())  # noqa: E731
+
+    def rel(a, b) -> float:
+        return float((a - b).abs().sum() / b.abs().sum())
+
     results = {}
     for name, probe in probes.items():
         row = {}

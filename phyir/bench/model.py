@@ -5,10 +5,11 @@ predicted by :func:`phyir.predict` (LNet lighting, the networks at that resoluti
 brought back to the scene's own resolution) and scored against its ground truth:
 
 * ``depth_abs_rel`` (:func:`phyir.metrics.depth_metrics`), ``albedo_mse`` and ``albedo_si_mse``
-  (:func:`phyir.metrics.material_metrics`, emitters left out) -- :func:`phyir.evaluation.pixel_metrics`;
+  (:func:`phyir.metrics.material_metrics`, emitters left out) --
+  :func:`phyir.evaluation.synthetic.pixel_metrics`;
 * relighting error (supplement D.3, :func:`phyir.metrics.relight_errors`) of the Table 2 spheres at
   ``relight`` ground-truth probe cells spread over the grid, LNet's probes read at the predicted
-  position of each cell (as :func:`phyir.evaluation.evaluate_model`'s ``model/lnet``), and its mean
+  position of each cell (as :func:`phyir.evaluation.synthetic.evaluate_model`'s ``model/lnet``), and its mean
   over the three materials ``relight_mean``.
 
 Weights: ``$PHYIR_BENCH_WEIGHTS`` or the shipped lite weights
@@ -85,7 +86,7 @@ def eval_scenes(cfg: dict, out: Path, quick: bool, log: Callable[[str], None]) -
 def lnet_relight(pred: PanoScene, gt: PanoScene, cfg: dict) -> dict[str, float]:
     """Relighting errors of LNet's probes at ``relight`` ground-truth probe cells (module doc)."""
     from phyir import pano
-    from phyir.evaluation import lighting_metrics, spread
+    from phyir.evaluation.synthetic import lighting_metrics, spread
     from phyir.inference import lnet_probes_at
     from phyir.lighting.projection import probe_positions
 
@@ -121,7 +122,7 @@ def bench_config(model, weights: str | None, net_size: tuple[int, int], scenes: 
                  cfg: dict, device: str) -> dict:
     """Time and (with trained weights) errors of one model at one network resolution."""
     from phyir.bench.measure import time_calls
-    from phyir.evaluation import pixel_metrics
+    from phyir.evaluation.synthetic import pixel_metrics
     from phyir.inference import predict
 
     def run(gt: PanoScene) -> PanoScene:

@@ -53,8 +53,8 @@ def _render_scene(cfg: dict, device: str):
 
 def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], object]]:
     """Callables running each part on realistic inputs (earlier stages precomputed)."""
-    import phyir
     from phyir.bench.profile import subnet_calls
+    from phyir.inference import predict
     from phyir.nets.model import PhyIRModel
     from phyir.shading.render import render_scene
 
@@ -76,7 +76,7 @@ def part_calls(size: str, cfg: dict, device: str) -> dict[str, Callable[[], obje
     calls["render_prefiltered"] = lambda: render_scene(sc, method="prefiltered")
     calls["render_importance"] = lambda: render_scene(sc, spp=cfg["render_spp"], method="importance")
     image_cpu = image.cpu()  # as loaded from a file: predict moves what it needs to the device
-    calls["predict"] = lambda: phyir.predict(image_cpu, model=model, device=device)
+    calls["predict"] = lambda: predict(image_cpu, model=model, device=device)
     return calls
 
 

@@ -76,7 +76,10 @@ def _random_batch(B: int, H: int, W: int, grid: tuple[int, int], probe_size: tup
     from phyir.scene import PanoScene
 
     g = torch.Generator().manual_seed(0)
-    r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+
+    def r(*s: int) -> torch.Tensor:
+        return torch.rand(*s, generator=g)
+
     return PanoScene(image=r(B, 3, H, W), depth=1 + 3 * r(B, 1, H, W),
                      normal=F.normalize(r(B, 3, H, W) - 0.5, dim=1), albedo=r(B, 3, H, W),
                      roughness=r(B, 1, H, W), metallic=r(B, 1, H, W), probes=r(B, *grid, 3, *probe_size),

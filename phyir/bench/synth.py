@@ -143,7 +143,10 @@ def bench_scene_spp(index: int, cfg: dict, device: str, log: Callable[[str], Non
     st_ref = dataclasses.replace(st0, spp=cfg["ref_spp"])
     gen = torch.Generator(device=device).manual_seed(REF_SEED)
     (ref, _), ref_t, _ = _timed(device, render_camera, sc, lms[0], st_ref, REF_SEED, gen)
-    med = lambda xs, i: statistics.median(x[i] for x in xs)  # noqa: E731
+
+    def med(xs, i):
+        return statistics.median(x[i] for x in xs)
+
     lm_s, lm_cpu = statistics.median(lm_t), statistics.median(lm_c)
     # the scene's total at the generator's own probe setting (or the first measured)
     vr0 = st0.vis_rays if st0.vis_rays in cfg["vis_rays"] else cfg["vis_rays"][0]
@@ -239,7 +242,10 @@ def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
 def summarize(result: dict) -> dict:
     """Per spp: mean over rooms of noise and times; the fitted noise rate of the camera noise."""
     spps = [r["spp"] for r in result["scenes"][0]["camera"]]
-    mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
+
+    def mean(xs):
+        return sum(xs) / len(xs)
+
     rows = []
     for i, spp in enumerate(spps):
         rs = [s["camera"][i] for s in result["scenes"]]

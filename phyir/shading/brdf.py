@@ -94,7 +94,10 @@ def cosines(n: Tensor, v: Tensor, l: Tensor, dim: int = -3) -> tuple[Tensor, Ten
     """(n.l, n.v, n.h, v.h) of unit vectors along axis ``dim`` (kept as size 1)."""
     h = v + l
     h = h / torch.linalg.vector_norm(h, dim=dim, keepdim=True).clamp(min=1e-12)
-    dot = lambda a, b: (a * b).sum(dim, keepdim=True)  # noqa: E731
+
+    def dot(a: Tensor, b: Tensor) -> Tensor:
+        return (a * b).sum(dim, keepdim=True)
+
     return dot(n, l), dot(n, v), dot(n, h), dot(v, h)
 
 
