@@ -49,6 +49,10 @@ DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training re
 # every layer comes back at the input's size: ~140 bytes per input pixel at the peak
 # (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
 MAX_PREDICT_SIZE = (4096, 8192)
+# A surface the camera sees faces the camera.  A normal layer with more than this share of its pixels
+# (solid-angle weighted) facing away has collapsed (the whole panorama "up": real rooms unlike the
+# training data) and is replaced by the normals of the predicted depth.
+MAX_AWAY_SHARE = 0.05
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
@@ -233,6 +237,9 @@ class PredictReport:
     lighting: str = ""  # the lighting method, when probes were computed
     net_size: tuple[int, int] | None = None  # network resolution, when the networks ran
     exposure_scale: float | None = None  # factor the networks' input was normalised by
+    gm_pass: str = ""  # "upright", or "mirrored": GMNet's pass on the input mirrored through the horizon
+    normals_from: str = ""  # "network", or "depth" when the network's normals were implausible
+    normals_away: float | None = None  # share of the network's normals facing away from the camera
 
 
 class _Clock:
@@ -316,7 +323,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     lnet_grid = None
     with torch.inference_mode(), autocast:
         if plan.run_gm:
-            gm = {k: v.float() for k, v in model.gmnet(xn).items()}
+            gm = _plausible_gmnet(model, xn, clock.report)
             clock.step("gmnet", 0.35)
         for k in plan.have & plan.gm_inputs:  # the input's own layers, at the network's resolution
             v = pano.resize_area(getattr(scene, k).float(), Hn, Wn).to(dev)[None]
@@ -328,6 +335,34 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
             lnet_grid = model.light(xn, gm, model.default_grid(Hn, Wn))[0].float() / s
             clock.step("lnet", 0.6)
     return _NetOut(gm, refined, lnet_grid, img.to(dev), xn, s, (Hn, Wn))
+
+
+def _unflip(out: dict[str, Tensor]) -> dict[str, Tensor]:
+    """GMNet's outputs for an upside-down input, back in the upright frame (y -> -y)."""
+    out = {k: v.flip(-2) for k, v in out.items()}
+    if "normal" in out:
+        flip_y = torch.tensor([1.0, -1.0, 1.0], device=out["normal"].device)[:, None, None]
+        out["normal"] = out["normal"] * flip_y
+    return out
+
+
+def _plausible_gmnet(model: Any, xn: Tensor, report: PredictReport) -> dict[str, Tensor]:
+    """GMNet on the input; when its normals are implausible (more than :data:`MAX_AWAY_SHARE` face away
+    from the camera), also on the input mirrored through the horizon (a valid room, floor and ceiling
+    swapped), and the pass whose normals face the camera more is kept — all five layers, since a
+    collapsed normal head means the whole pass is out of its depth."""
+    gm = {k: v.float() for k, v in model.gmnet(xn).items()}
+    report.gm_pass = "upright"
+    if "normal" not in gm:
+        return gm
+    away = away_share(gm["normal"][0])
+    if away <= MAX_AWAY_SHARE:
+        return gm
+    flipped = _unflip({k: v.float() for k, v in model.gmnet(xn.flip(-2)).items()})
+    if away_share(flipped["normal"][0]) < away:
+        report.gm_pass = "mirrored"
+        return flipped
+    return gm
 
 
 def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan,
@@ -343,12 +378,39 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
         lo = net.refined.get(k, net.gm[k])[0]
         up = _upsample_layer(k, lo, guide_lo, guide_hi) if net.net_size != (H, W) else lo
+        if k == "normal":
+            up = _plausible_normals(up, net.gm["depth"][0], guide_lo, guide_hi, report)
         if k in plan.missing:
             setattr(out, k, up.float().cpu())
             report.computed.append(k)
         else:
             geo[k] = up.float().cpu()
     return geo
+
+
+def away_share(normal: Tensor) -> float:
+    """Solid-angle share of normals ``[3,H,W]`` that face away from the camera (impossible for the
+    visible surfaces a panorama shows)."""
+    H, W = normal.shape[-2:]
+    d = pano.directions(H, W, normal.device, normal.dtype)
+    omega = pano.solid_angles(H, W, normal.device, normal.dtype)
+    away = ((normal * d).sum(0) > 0).to(omega.dtype)
+    return float((away * omega).sum() / omega.sum())
+
+
+def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
+                       report: PredictReport) -> Tensor:
+    """The network's normals, or, when more than :data:`MAX_AWAY_SHARE` of them face away from the
+    camera, the normals of the predicted depth (at the network's resolution, guided-upsampled)."""
+    report.normals_away = away_share(normal)
+    if report.normals_away <= MAX_AWAY_SHARE:
+        report.normals_from = "network"
+        return normal
+    report.normals_from = "depth"
+    nd = pano.normals_from_depth(depth_lo.float())
+    if tuple(nd.shape[-2:]) == tuple(normal.shape[-2:]):
+        return nd
+    return _upsample_layer("normal", nd, guide_lo, guide_hi)
 
 
 def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
@@ -387,6 +449,11 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
     out.meta["predict.computed"] = " ".join(report.computed)
     out.meta["predict.reused"] = " ".join(report.reused)
     out.meta["predict.lighting"] = report.lighting
+    if report.gm_pass:
+        out.meta["predict.gm_pass"] = report.gm_pass
+    if report.normals_from:
+        out.meta["predict.normals"] = report.normals_from
+        out.meta["predict.normals_away"] = f"{report.normals_away:.4f}"
     out.meta["predict.seconds"] = json.dumps(report.seconds)
 
 

@@ -114,8 +114,13 @@ def run(args: argparse.Namespace) -> int:
             secs = report.seconds
             H, W = scene.size
             parts = ", ".join(f"{k} {v:.2f}" for k, v in secs.items() if k != "total" and v >= 0.01)
+            note = "; geometry from the input mirrored through the horizon (the upright pass's normals " \
+                "faced away from the camera)" if report.gm_pass == "mirrored" else ""
+            if report.normals_from == "depth":
+                note += f"; normals from depth: the network's face away from the camera in " \
+                        f"{100 * report.normals_away:.0f}% of the view"
             bar.write(f"{src} -> {dst} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
-                      f"computed: {' '.join(report.computed) or 'nothing'})")
+                      f"computed: {' '.join(report.computed) or 'nothing'}{note})")
         bar.update(1)
     bar.close()
     return status

@@ -1,0 +1,100 @@
+"""predict never ships a collapsed normal layer: visible surfaces face the camera.
+
+A stub GMNet stands in for the network so each case is exact: in a box room it predicts "up"
+everywhere (the collapse seen on real rooms) unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from phyir import inference, pano
+from phyir.synth.analytic import box_room
+
+H, W = 32, 64
+LO, HI = (-2.0, -1.4, -3.0), (2.5, 1.3, 2.0)
+
+
+def angle_deg(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return torch.rad2deg(torch.acos((a * b).sum(0).clamp(-1, 1)))
+
+
+class StubGM(nn.Module):
+    """GMNet stand-in: exact box-room geometry for inputs brighter below the horizon, collapsed
+    ("up") normals for inputs brighter above (``collapse_both``: always collapsed)."""
+
+    def __init__(self, collapse_both: bool = False):
+        super().__init__()
+        self.scale = nn.Parameter(torch.ones(1))
+        self.collapse_both = collapse_both
+        self.calls = 0
+        depth, normal = box_room(H, W, LO, HI)
+        self.depth, self.normal = depth.float(), normal.float()
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        self.calls += 1
+        bright_top = bool(x[0, :, : H // 2].mean() > x[0, :, H // 2:].mean())
+        depth, normal = self.depth, self.normal
+        if not bright_top:  # what a mirrored room looks like, in its own (mirrored) frame
+            depth = depth.flip(-2)
+            normal = normal.flip(-2) * torch.tensor([1.0, -1.0, 1.0])[:, None, None]
+        if bright_top or self.collapse_both:
+            normal = torch.tensor([0.0, 1.0, 0.0])[:, None, None].expand(3, H, W)
+        out = {"depth": depth, "normal": normal, "albedo": torch.full((3, H, W), 0.5),
+               "roughness": torch.full((1, H, W), 0.5), "metallic": torch.zeros(1, H, W)}
+        return {k: v[None] * self.scale for k, v in out.items()}
+
+
+class StubModel(nn.Module):
+    def __init__(self, gm: StubGM):
+        super().__init__()
+        self.gmnet = gm
+        self.gsnet = nn.Module()
+        self.gsnet.targets = ()
+
+
+def lamp_panorama() -> torch.Tensor:
+    """A panorama lit from above: the upper half brighter (ceiling lights)."""
+    lat = math.pi / 2 - math.pi * (torch.arange(H) + 0.5) / H
+    return (0.2 + torch.sin(lat).clamp(min=0))[None, :, None].expand(3, H, W).contiguous()
+
+
+def test_away_share_of_exact_normals_is_zero_and_of_collapsed_ones_half():
+    _, normal = box_room(H, W, LO, HI)
+    assert inference.away_share(normal.float()) == 0.0
+    up = torch.tensor([0.0, 1.0, 0.0])[:, None, None].expand(3, H, W)
+    assert abs(inference.away_share(up) - 0.5) < 0.02
+
+
+def test_collapsed_pass_is_replaced_by_the_mirrored_pass():
+    gm = StubGM()
+    out, report = inference.predict_with_report(lamp_panorama(), model=StubModel(gm),
+                                                outputs=("depth", "normal"), probes=None)
+    assert gm.calls == 2 and report.gm_pass == "mirrored" and report.normals_from == "network"
+    _, truth = box_room(H, W, LO, HI)
+    assert float(angle_deg(out.normal, truth.float()).max()) < 1e-3
+    assert out.meta["predict.gm_pass"] == "mirrored"
+
+
+def test_normals_fall_back_to_the_depth_when_no_pass_is_plausible():
+    gm = StubGM(collapse_both=True)
+    out, report = inference.predict_with_report(lamp_panorama(), model=StubModel(gm),
+                                                outputs=("depth", "normal"), probes=None)
+    assert report.normals_from == "depth" and report.normals_away > 0.4
+    depth, truth = box_room(H, W, LO, HI)
+    assert torch.allclose(out.normal, pano.normals_from_depth(out.depth), atol=1e-6)
+    assert inference.away_share(out.normal) == 0.0
+    # the box's faces are planar: their depth normals are exact away from the edges
+    assert float(angle_deg(out.normal, truth.float()).median()) < 1.0
+
+
+def test_plausible_normals_run_one_pass_and_stay_as_predicted():
+    gm = StubGM()
+    dark_top = lamp_panorama().flip(-2)  # brighter below: the stub predicts exact (mirrored) normals
+    out, report = inference.predict_with_report(dark_top, model=StubModel(gm), outputs=("normal",),
+                                                probes=None)
+    assert gm.calls == 1 and report.gm_pass == "upright" and report.normals_from == "network"
+    assert torch.equal(out.normal, gm(dark_top[None])["normal"][0])
