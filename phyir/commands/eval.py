@@ -33,6 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
     parser.add_argument("--markdown", metavar="FILE", help="write the Markdown tables (also printed)")
+    parser.add_argument("--real", metavar="DIR",
+                        help="real panoramas without ground truth (.hdr/.exr/.png/.jpg): geometry checks, "
+                             "invariances and lighting at a point (phyir.evaluation.real)")
+    parser.add_argument("--sheet", metavar="PNG", help="--real: write a contact sheet of the rooms")
+    parser.add_argument("--lighting", choices=("projection", "lnet"),
+                        help="--real: predict's lighting method for the probe grid (default: predict's)")
 
 
 def markdown(results: dict[str, dict[str, float]]) -> str:
@@ -96,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     from phyir.errors import PhyIRError
     from phyir.io import atomic_write, load_scene
 
+    if getattr(args, "real", None):
+        return run_real(args)
     if bool(args.data) == bool(args.predictions):
         raise PhyIRError("give either prediction files with --gt, or --data (run the model)")
     if args.data:
@@ -127,4 +135,31 @@ def run(args: argparse.Namespace) -> int:
     if args.markdown:
         with atomic_write(args.markdown) as tmp:
             Path(tmp).write_text(md)
+    return 0
+
+
+def run_real(args: argparse.Namespace) -> int:
+    """``--real DIR``: :func:`phyir.evaluation.real.evaluate_real`, its tables printed, the per-panorama
+    seconds on stderr, JSON / Markdown / contact sheet written when asked."""
+    import json
+
+    from phyir.errors import PhyIRError
+    from phyir.evaluation.real import evaluate_real, markdown_real, save_contact_sheet
+    from phyir.io import atomic_write
+
+    if args.data or args.predictions or args.gt:
+        raise PhyIRError("--real evaluates a folder of panoramas on its own (no --data, --gt or PRED)")
+    options = {k: v for k, v in (("weights", args.weights), ("device", args.device),
+                                 ("lighting", args.lighting)) if v is not None}
+    results, sheet = evaluate_real(args.real, log=lambda s: print(s, file=sys.stderr, flush=True), **options)
+    md = markdown_real(results)
+    print(md)
+    if args.json:
+        with atomic_write(args.json) as tmp:
+            Path(tmp).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    if args.markdown:
+        with atomic_write(args.markdown) as tmp:
+            Path(tmp).write_text(md)
+    if args.sheet:
+        save_contact_sheet(sheet, args.sheet)
     return 0

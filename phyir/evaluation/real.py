@@ -1,0 +1,406 @@
+"""Evaluation on the user's own panoramas, which have no ground truth (issues 19 and 20).
+
+What can be checked without ground truth is whether the prediction behaves like indoor geometry and
+like a function of the scene rather than of the picture:
+
+* **plausibility** — the floor below the camera and the ceiling above it: ``nadir_up`` is the share of
+  pixels below :data:`NADIR_LAT` whose normal is within :data:`UP_TOL_DEG` of +y, ``zenith_down`` the
+  share above :data:`ZENITH_LAT` within it of −y; ``camera_height`` (m) is the median of −y over the
+  nadir cap's points (depth × direction) and ``floor_planarity`` the median |y + height| / height
+  there (0: a flat floor);
+* **consistency** — ``consistency_deg``: the mean angle between the predicted normals and the normals
+  of the predicted depth (central differences of the point map, wrapping in longitude) over
+  |latitude| < :data:`CONSISTENCY_LAT` (the poles' differences degenerate);
+* **invariances** — medians over pixels of the relative difference (depth |a−b|/b, base colour
+  Σ|a−b| / max(Σb, :data:`ALBEDO_FLOOR`)) or the angle (normals, degrees) between the prediction of a
+  transformed input, brought back, and the prediction of the input: ``yaw`` (rolled by W/4 columns,
+  rolled and rotated back with :func:`phyir.transforms.rotate_yaw`), ``exposure_1_16``/``exposure_16``
+  (radiance × 1/16 and × 16), ``ldr`` (the auto-exposed 8-bit copy, :func:`ldr_copy`, predicted with
+  ``hdr=False``) and ``res_half``/``res_double`` (the input area-resized to half and twice its width,
+  512 and 2048 for a 1k panorama; compared at half the input's size);
+* **confidence** — :func:`scene_confidence`, a score in [0, 1] from plausibility and consistency;
+* **lighting at a point** — :mod:`phyir.evaluation.real_lighting`, for the input and for its LDR copy.
+
+:func:`evaluate_real` runs all of it on a folder; ``phyir eval --real DIR`` is its command line.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import linear_to_srgb, luminance, srgb_to_linear
+from phyir.evaluation import real_lighting as RL
+from phyir.scene import PanoScene
+
+NADIR_LAT = -65.0  # degrees: below this the camera sees the floor in any room
+ZENITH_LAT = 70.0  # degrees: above this, the ceiling
+UP_TOL_DEG = 20.0
+CONSISTENCY_LAT = 60.0
+CONSISTENCY_SIZE = (256, 512)  # consistency is measured at most at this size (the networks')
+CONSISTENCY_SCALE_DEG = 45.0  # the consistency angle at which confidence halves (random normals: 90)
+FLAG_BELOW = 0.5
+ALBEDO_FLOOR = 0.03  # Σ RGB below which base colour differences are relative to this (black pixels)
+AUTO_EXPOSURE_KEY = 0.18  # the LDR copy's median luminance (a camera's auto-exposure)
+EXPOSURES = {"exposure_1_16": 1 / 16, "exposure_16": 16.0}
+EXTENSIONS = (".hdr", ".exr", ".png", ".jpg", ".jpeg")
+GEOMETRY_KEYS = ["nadir_up", "zenith_down", "floor_planarity", "camera_height", "consistency_deg",
+                 "confidence", "flagged", "seconds"]
+INVARIANCE_KEYS = ["yaw.depth", "yaw.albedo", "yaw.normal_deg", "exposure_1_16.depth", "exposure_1_16.albedo",
+                   "exposure_16.depth", "exposure_16.albedo", "ldr.depth", "ldr.normal_deg", "res_half.depth",
+                   "res_half.normal_deg", "res_double.depth", "res_double.normal_deg"]
+LIGHT_METRICS = ["rel_l1", "si_rel_l1", "ratio", "colour_deg"]
+
+Predictor = Callable[..., PanoScene]
+
+
+# ---------------------------------------------------------------------------------------------
+# plausibility, consistency, confidence
+
+
+def _lat_deg(H: int, W: int) -> Tensor:
+    return torch.rad2deg(pano.pixel_lonlat(H, W, dtype=torch.float64)[1])
+
+
+def plausibility(scene: PanoScene) -> dict[str, float]:
+    """``nadir_up``, ``zenith_down``, ``floor_planarity`` and ``camera_height`` (see the module doc)."""
+    H, W = scene.size
+    lat = _lat_deg(H, W)
+    n = scene.normal.double()
+    cos_tol = math.cos(math.radians(UP_TOL_DEG))
+    nadir, zenith = lat < NADIR_LAT, lat > ZENITH_LAT
+    y = pano.depth_to_points(scene.depth.double())[1][nadir]
+    height = float((-y).median())
+    planarity = float((y + height).abs().median() / height) if height > 0 else math.nan
+    return {"nadir_up": float((n[1][nadir] > cos_tol).double().mean()),
+            "zenith_down": float((n[1][zenith] < -cos_tol).double().mean()),
+            "floor_planarity": planarity, "camera_height": height}
+
+
+def central_normals(depth: Tensor) -> Tensor:
+    """Unit normals [3,H,W] of a radial depth [1,H,W] by central differences of the point map (wrapping
+    in longitude, one-sided at the pole rows), facing the camera.  Unlike
+    :func:`phyir.pano.normals_from_depth` nothing adapts to creases: this is the plain derivative."""
+    p = pano.depth_to_points(depth.double())
+    du = torch.roll(p, -1, -1) - torch.roll(p, 1, -1)
+    H = p.shape[-2]
+    i = torch.arange(H)
+    dv = p[:, (i + 1).clamp(max=H - 1)] - p[:, (i - 1).clamp(min=0)]
+    n = torch.cross(dv, du, dim=0)
+    n = n / _norm0(n)
+    return torch.where((n * p).sum(0, keepdim=True) > 0, -n, n)
+
+
+def angle_deg(a: Tensor, b: Tensor) -> Tensor:
+    """Per-pixel angle (degrees) between the vectors [3,...] of ``a`` and ``b`` (normalised first)."""
+    a, b = a.double(), b.double()
+    a, b = a / _norm0(a), b / _norm0(b)
+    return torch.rad2deg(torch.acos((a * b).sum(0).clamp(-1, 1)))
+
+
+def _norm0(x: Tensor) -> Tensor:
+    # sqrt of a sum: torch's CPU vector_norm over the leading axis is ~20x slower (phyir.pano)
+    return torch.sqrt((x * x).sum(0, keepdim=True)).clamp_min(1e-12)
+
+
+def consistency_deg(scene: PanoScene) -> float:
+    """Mean angle between the predicted normals and those of the predicted depth (module doc).
+
+    Both are area-resized to at most :data:`CONSISTENCY_SIZE` first, so the number measures the
+    geometry rather than the guided upsampling's pixel-scale texture, and is the same whatever the
+    input's resolution (at 1k it reads ~4 degrees more on the same prediction)."""
+    H, W = scene.size
+    depth, normal = scene.depth.double(), scene.normal.double()
+    if H > CONSISTENCY_SIZE[0]:
+        H, W = CONSISTENCY_SIZE
+        depth, normal = pano.resize_area(depth, H, W), pano.resize_area(normal, H, W)
+    band = _lat_deg(H, W).abs() < CONSISTENCY_LAT
+    return float(angle_deg(normal, central_normals(depth))[band].mean())
+
+
+def scene_confidence(scene: PanoScene) -> dict[str, float | bool]:
+    """How much to trust a predicted scene's geometry, from facts that need no ground truth.
+
+    ``confidence = nadir_up / (1 + (consistency_deg / CONSISTENCY_SCALE_DEG)⁴)``: a room whose floor
+    below the camera isn't predicted as a floor is wrong whatever else holds, and normals that don't
+    agree with the depth mean at least one of them is wrong.  The factor halves at 45°, halfway to
+    the 90° of unrelated normals; on the real test rooms good predictions read 20-26° (factor
+    0.9-0.96) and failed ones 85-95° (normals collapsed to +y: factor < 0.08).  The ceiling is left
+    out: real ceilings (domes, skylights, lamps at the zenith) fail the test legitimately.
+    Returns the :func:`plausibility` facts, ``consistency_deg``, ``confidence`` and ``flagged``
+    (confidence < :data:`FLAG_BELOW`).
+    """
+    out: dict[str, float | bool] = dict(plausibility(scene))
+    c = consistency_deg(scene)
+    conf = float(out["nadir_up"]) / (1 + (c / CONSISTENCY_SCALE_DEG) ** 4)
+    out |= {"consistency_deg": c, "confidence": conf, "flagged": conf < FLAG_BELOW}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# invariances
+
+
+def median_rel(a: Tensor, b: Tensor, floor: float = 1e-6) -> float:
+    """Median over pixels of Σ_c|a−b| / max(Σ_c b, floor) (channels first)."""
+    num = (a.double() - b.double()).abs().sum(0)
+    return float((num / b.double().sum(0).clamp_min(floor)).median())
+
+
+def median_angle(a: Tensor, b: Tensor) -> float:
+    return float(angle_deg(a, b).median())
+
+
+def yaw_back(scene: PanoScene, shift: int) -> PanoScene:
+    """The prediction of an input rolled ``shift`` columns right, brought back to the input's frame:
+    rolled back, normals rotated back about +y (:func:`phyir.transforms.rotate_yaw` by −shift)."""
+    from phyir.transforms import rotate_yaw
+
+    return rotate_yaw(scene.replace(probes=None), -shift)
+
+
+def ldr_copy(hdr: Tensor) -> tuple[Tensor, float]:
+    """The auto-exposed 8-bit sRGB copy of a linear image [3,H,W], decoded back to linear, and the
+    exposure factor: ``clip(hdr × s, 0, 1)`` sRGB-encoded, rounded to 8 bits, decoded, with
+    s = :data:`AUTO_EXPOSURE_KEY` / median luminance (what a camera's JPEG of the room holds)."""
+    x = torch.nan_to_num(hdr.float(), nan=0.0, posinf=0.0).clamp_min(0)
+    med = float(luminance(x).median())
+    s = AUTO_EXPOSURE_KEY / med if med > 0 else 1.0
+    q = np.round(linear_to_srgb(x.numpy() * s) * 255) / 255
+    return torch.from_numpy(srgb_to_linear(q)), s
+
+
+def _compare(a: PanoScene, b: PanoScene, layers: tuple[str, ...], size: tuple[int, int] | None = None
+             ) -> dict[str, float]:
+    """Invariance errors of ``a`` against the reference ``b`` (area-resized to ``size`` first)."""
+    def get(s: PanoScene, k: str) -> Tensor:
+        t = getattr(s, k).double()
+        return t if size is None else pano.resize_area(t, *size)
+
+    out = {}
+    for k in layers:
+        if k == "normal":
+            out["normal_deg"] = median_angle(get(a, k), get(b, k))
+        else:
+            out[k] = median_rel(get(a, k), get(b, k), ALBEDO_FLOOR if k == "albedo" else 1e-6)
+    return out
+
+
+def invariances(image: Tensor, ref: PanoScene, ldr_pred: PanoScene, is_hdr: bool,
+                predict: Predictor) -> dict[str, float]:
+    """Every invariance error of the module doc (``predict(image, **options)`` predicts)."""
+    H, W = image.shape[-2:]
+    shift = W // 4
+    geo = ("depth", "normal", "albedo")
+    out = {}
+    rolled = predict(torch.roll(image, shift, -1), hdr=is_hdr, outputs=geo, probes=None)
+    out |= _prefix("yaw", _compare(yaw_back(rolled, shift), ref, geo))
+    for name, k in EXPOSURES.items():
+        p = predict(image * k, hdr=is_hdr, outputs=("depth", "albedo"), probes=None)
+        out |= _prefix(name, _compare(p, ref, ("depth", "albedo")))
+    out |= _prefix("ldr", _compare(ldr_pred, ref, ("depth", "normal")))
+    half = (H // 2, W // 2)
+    for name, size in (("res_half", half), ("res_double", (2 * H, 2 * W))):
+        p = predict(pano.resize_area(image, *size), hdr=is_hdr, outputs=("depth", "normal"), probes=None)
+        out |= _prefix(name, _compare(p, ref, ("depth", "normal"), half))
+    return out
+
+
+def _prefix(p: str, d: dict[str, float]) -> dict[str, float]:
+    return {f"{p}.{k}": v for k, v in d.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# a panorama, a folder
+
+
+def panorama_files(folder: str | os.PathLike) -> list[Path]:
+    """The panoramas of ``folder`` (:data:`EXTENSIONS`), sorted by name."""
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in EXTENSIONS)
+
+
+def evaluate_panorama(path: str | os.PathLike, *, methods: dict[str, RL.LightMethod] | None = None,
+                      **options) -> tuple[dict[str, float | bool], dict, dict[str, np.ndarray]]:
+    """Geometry row, lighting rows (``{"hdr"|"ldr": {method: metrics}}``) and contact-sheet tiles of one
+    panorama; ``options`` go to every :func:`phyir.predict` call (weights, device, lighting).
+    ``seconds`` is the wall time of all of it, loading included."""
+    from phyir.inference import load_input
+    from phyir.inference import predict as phyir_predict
+
+    t0 = time.perf_counter()
+    scene, is_hdr = load_input(path)
+    image = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
+
+    def predict(x: Tensor, **kw) -> PanoScene:
+        return phyir_predict(x, **(options | kw))
+
+    ref = predict(image, hdr=is_hdr)
+    ldr, scale = ldr_copy(image)
+    ldr_pred = predict(ldr, hdr=False)
+    row: dict[str, float | bool] = dict(scene_confidence(ref))
+    row |= invariances(image, ref, ldr_pred, is_hdr, predict)
+    light, spheres = RL.evaluate_lighting(image, ldr, scale, {"hdr": ref, "ldr": ldr_pred}, methods)
+    row["seconds"] = time.perf_counter() - t0
+    return row, light, sheet_tiles(image, ref, spheres)
+
+
+def evaluate_real(folder: str | os.PathLike, *, log: Callable[[str], None] | None = None,
+                  methods: dict[str, RL.LightMethod] | None = None, **options) -> tuple[dict, list]:
+    """:func:`evaluate_panorama` on every panorama of ``folder``.  Returns the results
+    ``{"geometry": {name|"median": row}, "lighting": {"<name>/<hdr|ldr>"|"median/<hdr|ldr>": {key: v}}}``
+    (lighting keys ``<method>.<material>.<metric>`` and ``<method>.peak_deg``) and the contact-sheet
+    rows ``[(name, tiles)]``."""
+    from phyir.errors import InputError
+
+    files = panorama_files(folder)
+    if not files:
+        raise InputError(folder, f"no panoramas ({', '.join(EXTENSIONS)})")
+    geometry: dict[str, dict] = {}
+    lighting: dict[str, dict[str, float]] = {}
+    sheet = []
+    for i, f in enumerate(files):
+        row, light, tiles = evaluate_panorama(f, methods=methods, **options)
+        geometry[f.stem] = row
+        for inp, per_method in light.items():
+            lighting[f"{f.stem}/{inp}"] = {f"{m}.{k}": v for m, r in per_method.items() for k, v in r.items()}
+        sheet.append((f.stem, tiles))
+        if log is not None:
+            log(f"[{i + 1}/{len(files)}] {f.name}: {row['seconds']:.2f} s, confidence "
+                f"{row['confidence']:.2f}{' (flagged)' if row['flagged'] else ''}")
+    geometry["median"] = _median(list(geometry.values()))
+    for inp in ("hdr", "ldr"):
+        rows = [r for k, r in lighting.items() if k.endswith(f"/{inp}")]
+        lighting[f"median/{inp}"] = _median(rows)
+    return {"geometry": geometry, "lighting": lighting}, sheet
+
+
+def _median(rows: list[dict]) -> dict[str, float]:
+    """Per-key median of the numeric entries (``flagged`` becomes the share flagged)."""
+    out: dict[str, float] = {}
+    for k in rows[0]:
+        vals = [float(r[k]) for r in rows if k in r and not math.isnan(float(r[k]))]
+        if vals:
+            out[k] = statistics.fmean(vals) if k == "flagged" else statistics.median(vals)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# report
+
+
+def markdown_real(results: dict) -> str:
+    """The Markdown tables: geometry facts, invariances, then lighting per method (rows: panorama /
+    input, then the medians)."""
+    from phyir.metrics import markdown_table as table
+
+    def markdown_table(rows: dict, keys: list[str], digits: int) -> str:
+        return table(rows, keys, digits=digits).replace("| method |", "| panorama |", 1)
+
+    geo = {k: {c: float(v) for c, v in r.items()} for k, r in results["geometry"].items()}
+    parts = ["**Geometry without ground truth** (shares in [0,1], planarity relative to the camera height, "
+             "height in m, angles in degrees; median row: `flagged` is the share flagged)\n\n"
+             + markdown_table(geo, GEOMETRY_KEYS, digits=3),
+             "**Invariances** (median over pixels: relative difference for depth and base colour, degrees "
+             "for normals)\n\n" + markdown_table(geo, INVARIANCE_KEYS, digits=3)]
+    light = results["lighting"]
+    methods = sorted({k.split(".")[0] for r in light.values() for k in r},
+                     key=lambda m: (m == "naive", m))
+    for m in methods:
+        keys = [f"{mat}.{x}" for mat in RL.MATERIALS for x in LIGHT_METRICS] + ["peak_deg"]
+        rows = {name: {k: r[f"{m}.{k}"] for k in keys if f"{m}.{k}" in r} for name, r in light.items()}
+        short = {k: k.replace("matte_silver", "matte").replace("mirror_silver", "mirror")
+                 .replace("diffuse", "diff") for k in keys}
+        rows = {name: {short[k]: v for k, v in r.items()} for name, r in rows.items()}
+        parts.append(f"**Lighting at {RL.SPHERE_CENTRE} m: {m}** (spheres vs the panorama as light; "
+                     "rel L1, scale-invariant rel L1, intensity ratio, colour angle in degrees; "
+                     "peak_deg: brightest direction)\n\n"
+                     + markdown_table(rows, [short[k] for k in keys], digits=3))
+    return "\n".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# contact sheet (numpy + Pillow)
+
+TILE = (128, 256)  # panorama tiles of the contact sheet
+SPHERE_TILE = 32  # the sphere images' own size: four rows fit a panorama tile
+DEPTH_RAMP = np.array([[0.85, 0.15, 0.1], [0.95, 0.8, 0.2], [0.3, 0.8, 0.4], [0.2, 0.45, 0.9],
+                       [0.08, 0.05, 0.35]])  # near (red) to far (dark blue)
+
+
+def _depth_colours(depth: Tensor) -> np.ndarray:
+    """Log depth between its 2nd and 98th percentiles through :data:`DEPTH_RAMP`, uint8 [H,W,3]."""
+    d = np.log(np.maximum(depth[0].numpy(), 1e-3))
+    lo, hi = np.percentile(d, (2, 98))
+    t = np.clip((d - lo) / max(hi - lo, 1e-6), 0, 1) * (len(DEPTH_RAMP) - 1)
+    rgb = np.stack([np.interp(t, np.arange(len(DEPTH_RAMP)), DEPTH_RAMP[:, c]) for c in range(3)], -1)
+    return (rgb * 255 + 0.5).astype(np.uint8)
+
+
+def sheet_tiles(image: Tensor, scene: PanoScene, spheres: dict[str, Tensor]) -> dict[str, np.ndarray]:
+    """The contact sheet's tiles of one panorama: input, depth, normals, base colour (uint8 [h,w,3]
+    at :data:`TILE`) and the spheres (rows: truth then each method; columns: the materials), shown
+    with the input's display exposure."""
+    from PIL import Image
+
+    from phyir.color import exposure_scale, to_srgb8
+
+    s = float(exposure_scale(image))
+    small = {k: pano.resize_area(getattr(scene, k).float(), *TILE) for k in ("depth", "normal", "albedo")}
+    tiles = {"input": to_srgb8(pano.resize_area(image, *TILE), s), "depth": _depth_colours(small["depth"])}
+    n = small["normal"] / _norm0(small["normal"])
+    tiles["normals"] = ((n.permute(1, 2, 0).numpy() * 0.5 + 0.5) * 255 + 0.5).clip(0, 255).astype(np.uint8)
+    tiles["albedo"] = (linear_to_srgb(small["albedo"].permute(1, 2, 0).numpy()) * 255 + 0.5).astype(np.uint8)
+    who = ["truth"] + sorted({k.split("/")[0] for k in spheres} - {"truth"})
+    block = np.zeros((SPHERE_TILE * len(who), SPHERE_TILE * len(RL.MATERIALS), 3), np.uint8)
+    for r, w in enumerate(who):
+        for c, mat in enumerate(RL.MATERIALS):
+            if f"{w}/{mat}" in spheres:
+                img = Image.fromarray(to_srgb8(spheres[f"{w}/{mat}"].float(), s))
+                if img.size != (SPHERE_TILE, SPHERE_TILE):
+                    img = img.resize((SPHERE_TILE, SPHERE_TILE), Image.BILINEAR)
+                block[r * SPHERE_TILE:(r + 1) * SPHERE_TILE, c * SPHERE_TILE:(c + 1) * SPHERE_TILE] = img
+    tiles["spheres"] = block
+    tiles["sphere_rows"] = np.array(who)
+    return tiles
+
+
+def save_contact_sheet(rows: list[tuple[str, dict[str, np.ndarray]]], path: str | os.PathLike) -> None:
+    """One row per room: input, depth, normals, base colour and the spheres (truth vs ours), a legend
+    under them."""
+    from PIL import Image, ImageDraw
+
+    from phyir.io import atomic_write
+
+    pad, line = 4, 14
+    names = ["input", "depth", "normals", "albedo", "spheres"]
+    widths = [rows[0][1][k].shape[1] for k in names]
+    height = max(rows[0][1][k].shape[0] for k in names)
+    step = line + height + pad
+    size = (sum(widths) + pad * (len(names) + 1), line + len(rows) * step + 2 * line)
+    sheet = Image.new("RGB", size, (24, 24, 24))
+    draw = ImageDraw.Draw(sheet)
+    x = pad
+    for k, w in zip(names, widths):
+        draw.text((x, 1), k, fill=(200, 200, 200))
+        x += w + pad
+    for r, (name, tiles) in enumerate(rows):
+        y = line + r * step
+        draw.text((pad, y + 1), name, fill=(240, 240, 160))
+        x = pad
+        for k, w in zip(names, widths):
+            sheet.paste(Image.fromarray(tiles[k]), (x, y + line))
+            x += w + pad
+    who = ", ".join(str(w) for w in rows[0][1]["sphere_rows"])
+    draw.text((pad, size[1] - 2 * line + 2), f"spheres at {RL.SPHERE_CENTRE} m: rows {who}; columns "
+              f"{', '.join(RL.MATERIALS)}; the input's display exposure", fill=(200, 200, 200))
+    with atomic_write(path) as tmp:
+        sheet.save(tmp, format="PNG")
