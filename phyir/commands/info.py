@@ -65,4 +65,23 @@ def describe(path: str) -> str:
         lines.append(f"  usable as a panorama: yes ({main.height}x{main.width})")
     except InputError as e:
         lines.append(f"  usable as a panorama: no ({e.problem})")
+        return "\n".join(lines)
+    if "depth" in main.layers and "normal" in main.layers:
+        lines.append(confidence_line(path))
     return "\n".join(lines)
+
+
+def confidence_line(path: str) -> str:
+    """The geometry confidence of a scene with depth and normals (phyir.evaluation.real)."""
+    import warnings
+
+    from phyir import io
+    from phyir.evaluation.real import scene_confidence
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # repairs were reported by the layer table above
+        c = scene_confidence(io.load_scene(path))
+    verdict = "flagged: implausible geometry" if c["flagged"] else "plausible"
+    return (f"  geometry confidence: {float(c['confidence']):.2f} ({verdict}; nadir floor-like "
+            f"{float(c['nadir_up']):.2f}, normals vs depth {float(c['consistency_deg']):.0f}°, camera height "
+            f"{float(c['camera_height']):.2f} m)")

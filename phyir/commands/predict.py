@@ -65,6 +65,19 @@ def output_paths(files: list[Path], output: str) -> list[Path]:
     return [out / n for n in names]
 
 
+def geometry_confidence(scene) -> str:
+    """Record the scene's geometry confidence in its meta (the EXR header) and say it in words:
+    "; geometry confidence 0.96", with a warning when it is flagged; "" without depth and normals."""
+    from phyir.evaluation.real import scene_confidence
+
+    if scene.depth is None or scene.normal is None:
+        return ""
+    c = scene_confidence(scene)
+    scene.meta["predict.confidence"] = f"{float(c['confidence']):.3f}"
+    text = f"; geometry confidence {float(c['confidence']):.2f}"
+    return text + " (flagged: the room's geometry is implausible, check it)" if c["flagged"] else text
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
@@ -103,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
             scene, report = predict_with_report(
                 src, weights=args.weights, device=device, outputs=outputs, lighting=args.lighting,
                 net_size=net_size, hdr=False if args.ldr else None)
+            confidence = geometry_confidence(scene)
             dst.parent.mkdir(parents=True, exist_ok=True)
             save_scene(scene, dst, half=args.half)
         except PhyIRError as e:  # report and go on with the other inputs
@@ -120,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
                 note += f"; normals from depth: the network's face away from the camera in " \
                         f"{100 * report.normals_away:.0f}% of the view"
             bar.write(f"{src} -> {dst} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
-                      f"computed: {' '.join(report.computed) or 'nothing'}{note})")
+                      f"computed: {' '.join(report.computed) or 'nothing'}{note}){confidence}")
         bar.update(1)
     bar.close()
     return status

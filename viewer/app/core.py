@@ -80,6 +80,7 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
         self.path: str | None = None
         self.name = ""
         self.scene: PanoScene | None = None
+        self.confidence: float | None = None  # geometry confidence of the scene (status bar)
         self.arrays: dict[str, np.ndarray] = {}
         self.gt: PanoScene | None = None
         self.gt_arrays: dict[str, np.ndarray] = {}

@@ -29,6 +29,7 @@ class WorkerEvents:
             self.note("warning", text)
         H, W = self.scene.size
         self.note("info", f"opened {loaded.name} ({W}x{H}; layers: {', '.join(loaded.arrays)})")
+        self._geometry_confidence()
         self.timings["load"] = time.perf_counter() - self._job_start
         if self.recent is not None and loaded.path is not None:
             self.recent.add(loaded.path)
@@ -48,7 +49,24 @@ class WorkerEvents:
         self.timings["model"] = seconds
         extra = " (G: prediction / ground truth)" if self.gt is not None else ""
         self.note("info", f"model: {', '.join(arrays)} in {seconds:.1f} s{extra}")
+        self._geometry_confidence()
         self._refresh_pins()
+
+    def _geometry_confidence(self) -> None:
+        """How far to trust the scene's geometry (phyir.evaluation.real.scene_confidence), for the status
+        bar; a warning when it is flagged."""
+        from phyir.evaluation.real import scene_confidence
+
+        sc = self.scene
+        self.confidence = None
+        if sc is None or sc.depth is None or sc.normal is None:
+            return
+        c = scene_confidence(sc)
+        self.confidence = float(c["confidence"])
+        if c["flagged"]:
+            self.note("warning", f"geometry confidence {self.confidence:.2f}: the floor below the camera "
+                                 f"is {100 * float(c['nadir_up']):.0f}% floor-like and normals and depth "
+                                 f"disagree by {float(c['consistency_deg']):.0f}°; insertions may be off")
 
     def _on_gt(self, event: GroundTruth) -> None:
         gt = event.scene

@@ -22,6 +22,8 @@ class StatusBar:
             parts.append(f"col {int(u)} row {int(v)}")
             if vals is not None:
                 parts.append(f"{app.layer} {fmt_value(vals)}")
+        if app.confidence is not None:
+            parts.append(f"geometry confidence {app.confidence:.2f}")
         if app.frame_times:
             parts.append(f"frame {1000 * app.frame_times[-1]:.0f} ms")
         if app.busy and app.job_frames:
