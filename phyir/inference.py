@@ -204,6 +204,7 @@ class PredictOptions:
     hdr: bool | None = None
     model: Any = None
     amp: bool = True
+    recover_hdr: bool = True  # LDR inputs: give clipped lamps and windows their energy back (image layer)
     progress: Callable[[str, float], None] | None = None
     cancel: Callable[[], bool] | threading.Event | None = None
 
@@ -238,6 +239,7 @@ class PredictReport:
     net_size: tuple[int, int] | None = None  # network resolution, when the networks ran
     exposure_scale: float | None = None  # factor the networks' input was normalised by
     gm_pass: str = ""  # "upright", or "mirrored": GMNet's pass on the input mirrored through the horizon
+    hdr_recovery: Any = None  # LDR inputs: phyir.lighting.hdr_recovery.Recovery of the image layer
     normals_from: str = ""  # "network", or "depth" when the network's normals were implausible
     normals_away: float | None = None  # share of the network's normals facing away from the camera
 
@@ -439,6 +441,16 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     return fb[:, None]
 
 
+def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
+    """An LDR input's clipped regions given their light back (:mod:`phyir.lighting.hdr_recovery`)."""
+    from phyir.lighting.hdr_recovery import recover_clipped
+
+    image, rec = recover_clipped(out.image)
+    if rec.regions:
+        out.image = image
+        report.hdr_recovery = rec
+
+
 def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLike | None) -> None:
     """The report as the scene's header strings (they travel into the saved EXR)."""
     if report.net_size is not None:
@@ -451,6 +463,10 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
     out.meta["predict.lighting"] = report.lighting
     if report.gm_pass:
         out.meta["predict.gm_pass"] = report.gm_pass
+    if report.hdr_recovery is not None:
+        rec = report.hdr_recovery
+        out.meta["predict.hdr_recovery"] = (f"{rec.regions} clipped regions ({rec.solid_angle:.3g} sr) "
+                                            f"brightened; energy x{rec.energy_gain:.3g}")
     if report.normals_from:
         out.meta["predict.normals"] = report.normals_from
         out.meta["predict.normals_away"] = f"{report.normals_away:.4f}"
@@ -498,6 +514,10 @@ def predict_with_report(source: str | os.PathLike | Tensor | PanoScene, options:
         geo = _upsample_layers(scene, out, net, plan, report)
         clock.step("upsample", 0.7)
         report.net_size, report.exposure_scale = net.net_size, net.scale
+    if not is_hdr and opts.recover_hdr:
+        _recover_hdr(out, report)
+        if plan.run_gm or plan.need_probes:
+            net.image = out.image.to(net.image.device)  # projection reads the recovered light
     for k in GM_LAYERS:  # keep only what was asked for or given
         if k not in plan.want and k not in plan.have:
             setattr(out, k, None)

@@ -130,6 +130,9 @@ def run(args: argparse.Namespace) -> int:
             parts = ", ".join(f"{k} {v:.2f}" for k, v in secs.items() if k != "total" and v >= 0.01)
             note = "; geometry from the input mirrored through the horizon (the upright pass's normals " \
                 "faced away from the camera)" if report.gm_pass == "mirrored" else ""
+            if report.hdr_recovery is not None:
+                note += f"; HDR recovered in {report.hdr_recovery.regions} clipped regions " \
+                        f"(energy x{report.hdr_recovery.energy_gain:.2f})"
             if report.normals_from == "depth":
                 note += f"; normals from depth: the network's face away from the camera in " \
                         f"{100 * report.normals_away:.0f}% of the view"

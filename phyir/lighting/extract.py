@@ -52,7 +52,7 @@ class Light:
         return math.acos(max(-1.0, 1.0 - self.solid_angle / (2 * math.pi)))
 
 
-def _components(mask: np.ndarray) -> tuple[np.ndarray, int]:
+def components(mask: np.ndarray) -> tuple[np.ndarray, int]:
     """Labels (-1 outside) of the 8-connected components of ``mask [h, w]``, wrapping in longitude."""
     h, w = mask.shape
     labels = np.full((h, w), -1, dtype=np.int64)
@@ -101,7 +101,7 @@ def extract_lights(probe: Tensor, *, max_lights: int = MAX_LIGHTS, threshold: fl
     residual = p * keep
     peak = p - residual  # [3, h, w], zero outside bright texels
     peak_lum = lum - lum * keep
-    labels, n = _components(bright.numpy())
+    labels, n = components(bright.numpy())
     labels_t = torch.from_numpy(labels)
     dirs = pano.directions(h, w, dtype=torch.float64)
     found = []

@@ -1,0 +1,79 @@
+"""HDR from LDR: the light an 8-bit panorama clipped, given back to its clipped regions.
+
+An 8-bit panorama (a phone, a JPEG) clips lamps and windows at 1.0: the naive environment from it
+holds a fraction of their energy (the real panoramas of ``phyir eval --real``: a diffuse sphere lit by
+the LDR copy is 0.4-0.9x as bright as under the HDR). Each connected clipped region (8-connected,
+wrapping in longitude, found at :data:`LABEL_ROWS` rows) gets the mean luminance a clipped steradian
+has in the synthetic rooms, relative to the panorama's median luminance: ``L / median = GAIN *
+A**AREA_EXPONENT`` (``python benchmarks/ldr_clip_calibration.py DATA``: auto-exposed 8-bit copies of
+path-traced HDR rooms; GAIN is the median over clipped solid angle; the region's area tells almost
+nothing — a log-linear fit leaves a factor ~4.4 of spread — so AREA_EXPONENT is 0). The region keeps
+its colour and its shape; a region already brighter than that is left alone. One number for every
+lamp is crude, but it brings the missing energy back in the mean, where the LDR copy holds a
+fraction of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import luminance
+from phyir.lighting.extract import components
+
+CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
+GAIN = 14.60  # benchmarks/ldr_clip_calibration.py on `phyir synth --count 40 --seed 7000 --size 128x256`
+AREA_EXPONENT = 0.0
+LABEL_ROWS = 64
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What :func:`recover_clipped` did: regions boosted, their solid angle, the energy factor."""
+
+    regions: int
+    solid_angle: float  # steradians of clipped pixels
+    energy_gain: float  # luminous energy of the panorama after / before
+
+
+def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Tensor, int]:
+    """``(clipped [H,W] bool, labels [H,W] (-1 outside), count)`` of an LDR panorama ``[3,H,W]``."""
+    H, W = image.shape[-2:]
+    clipped = (image >= clip).any(0)
+    rows = min(LABEL_ROWS, H)
+    coarse = pano.resize_area(clipped[None].float(), rows, 2 * rows)[0] > 0
+    labels, n = components(coarse.numpy())
+    lab = torch.from_numpy(labels)
+    lab = lab[(torch.arange(H) * rows // H)][:, (torch.arange(W) * 2 * rows // W)]
+    return clipped, torch.where(clipped, lab, torch.full_like(lab, -1)), n
+
+
+def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Recovery]:
+    """The LDR panorama ``[3,H,W]`` (linear, clipped at ``clip``) with its clipped regions brought to
+    the calibrated radiance (see the module doc); unclipped pixels are unchanged."""
+    x = image.float()
+    H, W = x.shape[-2:]
+    clipped, labels, n = clipped_regions(x, clip)
+    if n == 0:
+        return image, Recovery(0, 0.0, 1.0)
+    omega = pano.solid_angles(H, W)
+    lum = luminance(x)
+    med = float(lum.median())
+    out = x.clone()
+    boosted = 0
+    for k in range(n):
+        m = labels == k
+        area = float(omega[m].sum())
+        if area <= 0:
+            continue
+        mean = float((lum[m] * omega[m]).sum()) / area
+        target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
+        if target > mean:
+            out[:, m] = x[:, m] * (target / max(mean, 1e-6))
+            boosted += 1
+    before = float((lum * omega).sum())
+    after = float((luminance(out) * omega).sum())
+    return out, Recovery(boosted, float(omega[clipped].sum()), after / max(before, 1e-30))
