@@ -7,7 +7,7 @@ wrapping in longitude, found at :data:`LABEL_ROWS` rows) gets the mean luminance
 has in the synthetic rooms, relative to the panorama's median luminance: ``L / median = GAIN *
 A**AREA_EXPONENT`` (``python benchmarks/ldr_clip_calibration.py DATA``: auto-exposed 8-bit copies of
 path-traced HDR rooms; GAIN is the median over clipped solid angle; the region's area tells almost
-nothing — a log-linear fit leaves a factor ~4.4 of spread — so AREA_EXPONENT is 0). The region keeps
+nothing — a log-linear fit leaves a factor ~4 of spread — so AREA_EXPONENT is 0). The region keeps
 its colour and its shape; a region already brighter than that is left alone. One number for every
 lamp is crude, but it brings the missing energy back in the mean, where the LDR copy holds a
 fraction of it.
@@ -25,7 +25,7 @@ from phyir.color import luminance
 from phyir.lighting.extract import components
 
 CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
-GAIN = 14.60  # benchmarks/ldr_clip_calibration.py on `phyir synth --count 40 --seed 7000 --size 128x256`
+GAIN = 13.53  # benchmarks/ldr_clip_calibration.py on `phyir synth --count 40 --seed 7000 --size 128x256`
 AREA_EXPONENT = 0.0
 LABEL_ROWS = 64
 
