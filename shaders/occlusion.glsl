@@ -1,4 +1,4 @@
-// Occlusion by an inserted object's proxy spheres (viewer.objects.fit_proxies): the share of a
+// Occlusion by an inserted object's proxy spheres (phyir.insert.objects.fit_proxies): the share of a
 // surface point's cosine-weighted hemisphere they cover (composite.frag for receivers, object.frag
 // for the floor the object sees in its own reflections).
 #include "pano.glsl"

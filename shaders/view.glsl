@@ -1,4 +1,4 @@
-// Screen pixel -> panorama coordinates for the two views (mirrored by viewer/view.py).
+// Screen pixel -> panorama coordinates for the two views (mirrored by phyir/insert/views.py).
 // The view is chosen at compile time (VIEW_KIND: 0 = equirect pan/zoom, 1 = perspective
 // look-around): software GL runs both sides of a run-time branch.
 #ifndef VIEW_KIND
