@@ -97,10 +97,9 @@ def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
 
     from phyir.errors import PhyIRError
-    from phyir.io import atomic_write, load_scene
+    from phyir.io import load_scene
 
     if getattr(args, "real", None):
         return run_real(args)
@@ -127,7 +126,16 @@ def run(args: argparse.Namespace) -> int:
                                  f"truth's {gt.size[0]}x{gt.size[1]}")
             meter.add(evaluate_pair(pred, gt, relight=args.relight, spp=args.spp))
         results = {"predictions": meter.result()}
-    md = markdown(results)
+    write_outputs(args, results, markdown(results))
+    return 0
+
+
+def write_outputs(args: argparse.Namespace, results: dict, md: str) -> None:
+    """Print the Markdown; write --json and --markdown (atomically) when asked."""
+    import json
+
+    from phyir.io import atomic_write
+
     print(md)
     if args.json:
         with atomic_write(args.json) as tmp:
@@ -135,31 +143,21 @@ def run(args: argparse.Namespace) -> int:
     if args.markdown:
         with atomic_write(args.markdown) as tmp:
             Path(tmp).write_text(md)
-    return 0
 
 
 def run_real(args: argparse.Namespace) -> int:
     """``--real DIR``: :func:`phyir.evaluation.real.evaluate_real`, its tables printed, the per-panorama
     seconds on stderr, JSON / Markdown / contact sheet written when asked."""
-    import json
 
     from phyir.errors import PhyIRError
     from phyir.evaluation.real import evaluate_real, markdown_real, save_contact_sheet
-    from phyir.io import atomic_write
 
     if args.data or args.predictions or args.gt:
         raise PhyIRError("--real evaluates a folder of panoramas on its own (no --data, --gt or PRED)")
     options = {k: v for k, v in (("weights", args.weights), ("device", args.device),
                                  ("lighting", args.lighting)) if v is not None}
     results, sheet = evaluate_real(args.real, log=lambda s: print(s, file=sys.stderr, flush=True), **options)
-    md = markdown_real(results)
-    print(md)
-    if args.json:
-        with atomic_write(args.json) as tmp:
-            Path(tmp).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
-    if args.markdown:
-        with atomic_write(args.markdown) as tmp:
-            Path(tmp).write_text(md)
+    write_outputs(args, results, markdown_real(results))
     if args.sheet:
         save_contact_sheet(sheet, args.sheet)
     return 0

@@ -27,6 +27,7 @@ from phyir.lighting.projection import DepthSurface, project_probes
 from phyir.scene import PanoScene, SceneError
 
 CACHE_SIZE = 256
+DRAFT_STEP = 0.05  # metres: while an object is dragged its light is read on this grid, one ray per texel
 
 
 class LightAtPoint:
@@ -44,7 +45,7 @@ class LightAtPoint:
         self.probe_size = probe_size or (tuple(scene.probe_size) if scene.probes is not None else (16, 32))
         self.surface = surface if surface is not None else DepthSurface.from_scene(scene)
         self.supersample, self.steps = supersample, steps
-        self._cache: OrderedDict[tuple[int, int, int], Tensor] = OrderedDict()
+        self._cache: OrderedDict[tuple, Tensor] = OrderedDict()
 
     def weights(self, point: Tensor) -> tuple[Tensor, Tensor]:
         """The learned probes blended for the unseen share (see :meth:`ProbeField.weights`)."""
@@ -63,15 +64,19 @@ class LightAtPoint:
             out.append(fb if tuple(fb.shape[-2:]) == (h, w) else pano.resize_area(fb, h, w))
         return torch.stack(out)
 
-    def probes_at(self, points: Tensor) -> Tensor:
-        """``[N,3,h,w]`` probes at ``points [N,3]`` (float32, CPU)."""
+    def probes_at(self, points: Tensor, draft: bool = False) -> Tensor:
+        """``[N,3,h,w]`` probes at ``points [N,3]`` (float32, CPU).  ``draft``: at the nearest node of a
+        :data:`DRAFT_STEP` grid with one ray per texel (an object being dragged: most frames find
+        their probe cached)."""
         pts = torch.as_tensor(points, dtype=torch.float32).reshape(-1, 3)
-        keys = [tuple(int(round(float(c) * 1000)) for c in p) for p in pts]
+        if draft:
+            pts = torch.round(pts / DRAFT_STEP) * DRAFT_STEP
+        keys = [(draft, *(int(round(float(c) * 1000)) for c in p)) for p in pts]
         todo = [i for i, k in enumerate(keys) if k not in self._cache]
         if todo:
             sel = pts[todo]
             probes, _ = project_probes(self.surface, sel, self.probe_size, self.fallback(sel),
-                                       supersample=self.supersample, steps=self.steps)
+                                       supersample=1 if draft else self.supersample, steps=self.steps)
             for i, p in zip(todo, probes.clamp_min(0).cpu()):
                 self._cache[keys[i]] = p
                 while len(self._cache) > CACHE_SIZE:
@@ -80,9 +85,9 @@ class LightAtPoint:
             self._cache.move_to_end(k)
         return torch.stack([self._cache[k] for k in keys])
 
-    def probe_at(self, point: Tensor) -> Tensor:
+    def probe_at(self, point: Tensor, draft: bool = False) -> Tensor:
         """The probe ``[3,h,w]`` at one point ``[3]`` (the :class:`ProbeField` interface)."""
-        return self.probes_at(torch.as_tensor(point).reshape(1, 3))[0]
+        return self.probes_at(torch.as_tensor(point).reshape(1, 3), draft)
 
 
 def light_at(scene: PanoScene, points: Tensor, size: tuple[int, int] | None = None) -> Tensor:
