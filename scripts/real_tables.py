@@ -1,0 +1,60 @@
+"""README tables of ``phyir eval --real``: geometry facts and lighting at a point, from its JSON.
+
+    phyir eval --real ../shared/panos --json real.json --sheet docs/img/real_eval_sheet.png
+    python scripts/real_tables.py real.json
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+
+GEOMETRY = ("nadir_up", "zenith_down", "floor_planarity", "consistency_deg", "yaw.depth", "yaw.normal_deg",
+            "ldr.depth", "ldr.normal_deg", "confidence")
+
+
+def geometry_table(geo: dict) -> list[str]:
+    rooms = sorted(r for r in geo if r != "median")
+    rows = [(r.replace("_1k", ""), geo[r], " (flagged)" if geo[r]["flagged"] else "") for r in rooms]
+    rows.append(("median", {k: statistics.median(float(geo[r][k]) for r in rooms) for k in GEOMETRY}, ""))
+    out = ["| panorama | nadir up | zenith down | floor planarity | normals vs depth | yaw: depth / normals "
+           "| LDR vs HDR: depth / normals | confidence |",
+           "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for name, g, flag in rows:
+        out.append(f"| {name} | {g['nadir_up']:.2f} | {g['zenith_down']:.2f} "
+                   f"| {100 * g['floor_planarity']:.1f} % | {g['consistency_deg']:.1f}° "
+                   f"| {100 * g['yaw.depth']:.1g} % / {g['yaw.normal_deg']:.1g}° "
+                   f"| {100 * g['ldr.depth']:.1f} % / {g['ldr.normal_deg']:.1f}° "
+                   f"| {g['confidence']:.2f}{flag} |")
+    return out
+
+
+def lighting_table(light: dict) -> list[str]:
+    out = ["| panorama | input | diffuse rel L1: ours / probe grid / naive LDR | diffuse intensity ratio "
+           "| diffuse colour error | matte silver rel L1: ours / naive LDR |",
+           "| --- | --- | ---: | ---: | ---: | ---: |"]
+    for inp in ("hdr", "ldr"):
+        keys = sorted(k for k in light if k.endswith("/" + inp) and not k.startswith("median"))
+        rows = [(k.split("/")[0].replace("_1k", ""), light[k]) for k in keys]
+        rows.append(("median", {m: statistics.median(light[k][m] for k in keys) for m in light[keys[0]]}))
+        for name, v in rows:
+            out.append(f"| {name} | {inp} | {v['light_at.diffuse.rel_l1']:.3f} "
+                       f"/ {v['probe_field.diffuse.rel_l1']:.3f} / {v['naive.diffuse.rel_l1']:.3f} "
+                       f"| {v['light_at.diffuse.ratio']:.2f} "
+                       f"| {v['light_at.diffuse.colour_deg']:.1f}° | {v['light_at.matte_silver.rel_l1']:.3f}"
+                       f" / {v['naive.matte_silver.rel_l1']:.3f} |")
+    return out
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print(__doc__, file=sys.stderr)
+        return 2
+    doc = json.loads(open(argv[0]).read())
+    print("\n".join(geometry_table(doc["geometry"]) + [""] + lighting_table(doc["lighting"])))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
