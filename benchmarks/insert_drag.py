@@ -55,7 +55,7 @@ def _scene(args: argparse.Namespace):
     if args.scene:
         scene = load_scene(args.scene)
     else:
-        from insert_fixtures import box_room
+        from support.scenes import box_room
 
         scene = box_room(512, 1024, grid=(32, 64), probe_size=(16, 32))
     if args.relight_tolerance is not None:

@@ -40,7 +40,7 @@ def main() -> int:
 
     probes = {}
     try:
-        from test_insert_gl import lamp_probe
+        from support.scenes import lamp_probe
 
         probes["lamps (tests)"] = lamp_probe()
     except ImportError:

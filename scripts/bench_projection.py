@@ -18,17 +18,13 @@ from phyir import pano
 from phyir.io import load_panorama
 from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
 from phyir.scene import PanoScene
+from phyir.synth.analytic import box_room
 
 PANOS = Path(__file__).resolve().parents[2] / "shared" / "panos"
 
 
-def box_room_depth(H: int, W: int, lo=(-2.0, -1.5, -3.0), hi=(3.0, 1.3, 2.5)) -> torch.Tensor:
-    """Radial depth [1,H,W] of an axis-aligned box room seen from the origin."""
-    d = pano.directions(H, W, dtype=torch.float64)
-    lo_t, hi_t = torch.tensor(lo, dtype=torch.float64), torch.tensor(hi, dtype=torch.float64)
-    inv = 1 / torch.where(d.abs() < 1e-12, torch.full_like(d, 1e-12), d)
-    t = torch.maximum(lo_t[:, None, None] * inv, hi_t[:, None, None] * inv).amin(0)
-    return t[None].float()
+# the box room around the camera whose depth the probes march (phyir.synth.analytic.box_room)
+ROOM_LO, ROOM_HI = (-2.0, -1.5, -3.0), (3.0, 1.3, 2.5)
 
 
 def main() -> None:
@@ -49,7 +45,7 @@ def main() -> None:
     probe = tuple(int(x) for x in a.probe.split("x"))
     path = a.pano or sorted(PANOS.glob("*.hdr"))[0]
     img = pano.resize_area(load_panorama(path), H, W)
-    scene = PanoScene(image=img, depth=box_room_depth(H, W)).to(a.device)
+    scene = PanoScene(image=img, depth=box_room(H, W, ROOM_LO, ROOM_HI)[0].float()).to(a.device)
     for _ in range(a.repeat):
         sync = torch.cuda.synchronize if a.device.startswith("cuda") else (lambda: None)
         t0 = time.perf_counter()

@@ -131,14 +131,48 @@ def test_sizes_stay_on_a_screen():
     assert not bad, "\n".join(bad)
 
 
-def test_no_test_module_imports_another():
-    tests = {p.stem for p in (REPO / "tests").rglob("*.py") if p.stem != "__init__"}
+def modules_under_tests() -> set[str]:
+    """Import names of the modules under tests/ that no module may import: every one (test_*.py,
+    conftest, anything else) except the shared builders of tests/support/ (imported as ``support.*``)."""
+    root = REPO / "tests"
+    return {p.stem for p in root.rglob("*.py")
+            if p.stem != "__init__" and p.relative_to(root).parts[0] != "support"}
+
+
+def imports_of_test_modules(tree: ast.AST, forbidden: set[str]) -> list[tuple[int, str]]:
+    """(line, module) of the imports in ``tree`` of a module named in ``forbidden`` (or of the tests
+    folder itself); the packages ``phyir`` and ``viewer`` and ``support.*`` are fine."""
     bad = []
-    for p in (REPO / "tests").rglob("*.py"):
-        for line, m in imported_modules(ast.parse(p.read_text())):
-            if any(part in tests for part in m.split(".")[:2]) and not m.startswith(("phyir", "viewer")):
-                bad.append(f"{p.relative_to(REPO)}:{line}: imports {m}")
+    for line, m in imported_modules(tree):
+        parts = m.split(".")
+        if parts[0] in ("phyir", "viewer", "support"):
+            continue
+        if parts[0] == "tests" or any(part in forbidden for part in parts[:2]):
+            bad.append((line, m))
+    return bad
+
+
+def test_no_test_module_imports_another():
+    forbidden = modules_under_tests()
+    assert {"conftest", "test_layering", "test_io", "test_viewer_app"} <= forbidden
+    assert not forbidden & {"scenes", "tiny_scenes", "corpus", "paths"}
+    bad = [f"{p.relative_to(REPO)}:{line}: imports {m}" for p in sorted((REPO / "tests").rglob("*.py"))
+           for line, m in imports_of_test_modules(ast.parse(p.read_text()), forbidden)]
     assert not bad, "\n".join(bad)
+
+
+def test_the_test_import_rule_flags_test_modules_and_allows_support():
+    forbidden = modules_under_tests()
+    flagged = ["import test_io", "from test_viewer_app import FakeModel", "from conftest import PANOS",
+               "import conftest", "from tests.test_io import x", "from tests import conftest",
+               "def f():\n    from test_bad_inputs import corpus_outcomes"]
+    allowed = ["from support.scenes import box_room", "from support import viewer", "import support.corpus",
+               "from phyir.io import exr", "import viewer.app", "from viewer.gl import window",
+               "import numpy"]
+    for src in flagged:
+        assert imports_of_test_modules(ast.parse(src), forbidden), src
+    for src in allowed:
+        assert not imports_of_test_modules(ast.parse(src), forbidden), src
 
 
 def test_every_package_ships():

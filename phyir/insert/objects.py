@@ -5,7 +5,7 @@ Units and axes: a mesh keeps its own units (metres) and its local +y is its up a
 stands it on surfaces along +y).  Primitives are unit-size: ``sphere`` of radius 1, ``cube``
 spanning [-1, 1]^3, ``cylinder`` of radius 1 from y = -1 to 1; a scale multiplies them.
 
-Loading outcomes (documented in docs/insertion.md, tested in tests/test_objects.py):
+Loading outcomes (documented in docs/insertion.md, tested in tests/phyir/insert/test_objects.py):
 * missing or unreadable file, no triangles, NaN/Inf vertices, more than :data:`MAX_FACES`
   triangles, zero or absurd size: :class:`~phyir.errors.InputError` with a one-line message (PLY,
   OFF and binary STL files declaring too many faces are refused from their header, before parsing);

@@ -1,12 +1,11 @@
 """Yaw rotation and mirroring keep every layer of a scene consistent with the others."""
 
-import math
-
 import pytest
 import torch
 
 from phyir import PanoScene
 from phyir.pano import directions, normals_from_depth, rotate_vectors, sample_dir, yaw_matrix, yaw_shift_angle
+from phyir.synth.analytic import box_room
 from phyir.transforms import mirror_lr, rotate_yaw
 
 H, W = 32, 64
@@ -14,12 +13,8 @@ Hp, Wp, h, w = 4, 8, 8, 16  # probe blocks are 8 x 8 pixels; a probe column is 4
 
 
 def box_depth(H: int, W: int) -> torch.Tensor:
-    """Radial depth of an off-centre box room (ray-box intersection)."""
-    d = directions(H, W, dtype=torch.float64)
-    lo = torch.tensor([-2.0, -1.5, -2.5], dtype=torch.float64)[:, None, None]
-    hi = torch.tensor([3.0, 1.2, 1.7], dtype=torch.float64)[:, None, None]
-    t = torch.where(d.abs() > 1e-12, torch.where(d > 0, hi, lo) / d, torch.full_like(d, math.inf))
-    return t.min(0, keepdim=True).values.float()
+    """Radial depth of an off-centre box room (phyir.synth.analytic)."""
+    return box_room(H, W, (-2.0, -1.5, -2.5), (3.0, 1.2, 1.7))[0].float()
 
 
 def ellipsoid_depth(H: int, W: int) -> torch.Tensor:

@@ -1,9 +1,6 @@
 """A corpus of bad files, generated here; each gets the outcome documented in docs/file-formats.md."""
 
-import json
 import struct
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -11,6 +8,7 @@ import OpenEXR
 import pytest
 import torch
 from PIL import Image
+from support.corpus import corpus_outcomes
 
 from phyir import PanoScene, io
 from phyir.io import InputError, InputWarning
@@ -272,17 +270,3 @@ def test_corrupt_exr_corpus_never_crashes(tmp_path):
         paths[-1].write_bytes(bytes(b))
     results = corpus_outcomes(CHILD, paths)
     assert all(results[str(p)] == "InputError" for p in paths if p.name.startswith("trunc"))
-
-
-def corpus_outcomes(child: str, paths: list) -> dict[str, str]:
-    """Load every file of a corrupt corpus in one child interpreter running ``child`` (a crash there
-    can't take the test run down): {path: "ok" | "InputError"}; any other outcome fails."""
-    proc = subprocess.run([sys.executable, "-c", child, *map(str, paths)], capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 0, f"interpreter crashed ({proc.returncode}): {proc.stderr[-2000:]}"
-    lines = proc.stdout.splitlines()
-    assert lines[-1] == "done"
-    results = dict(json.loads(line) for line in lines[:-1])
-    assert len(results) == len(paths)
-    assert set(results.values()) <= {"ok", "InputError"}, results
-    return results

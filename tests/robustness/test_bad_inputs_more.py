@@ -16,9 +16,9 @@ import numpy as np
 import OpenEXR
 import pytest
 import torch
-from nets_fixtures import one_thread, tiny_scene
 from PIL import Image
-from test_bad_inputs import corpus_outcomes
+from support.corpus import corpus_outcomes
+from support.tiny_scenes import tiny_scene
 
 import phyir
 from phyir import io
@@ -28,7 +28,7 @@ from phyir.io import exr, ldr, rgbe
 from phyir.learn.weights import save_weights
 from phyir.nets import ModelConfig, PhyIRModel
 
-_threads = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 trimesh = pytest.importorskip("trimesh")
 
 
@@ -276,7 +276,7 @@ def test_interrupted_write_leaves_no_partial_output(tmp_path, weights, pano_file
 
 
 def test_cli_insert_bad_mesh_writes_nothing(tmp_path, capsys):
-    from insert_fixtures import box_room
+    from support.scenes import box_room
 
     scene = tmp_path / "room.exr"
     io.save_scene(box_room(32, 64), scene)

@@ -11,10 +11,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.paths import REPO
 
 from phyir.bench import fuzz
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def run_fuzzer(tmp_path: Path, *args: str, timeout: float = 240) -> tuple[int, dict, str]:

@@ -11,7 +11,7 @@ import json
 import pytest
 import torch
 import torch.nn.functional as F
-from nets_fixtures import one_thread, tiny_scene, tiny_scenes
+from support.tiny_scenes import tiny_scene, tiny_scenes
 
 import phyir
 from phyir import pano
@@ -31,7 +31,7 @@ from phyir.nets import ModelConfig, PhyIRModel
 from phyir.scene import PanoScene
 from phyir.shading import prefilter, render
 
-_threads = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 H, W = 32, 64  # predict runs its networks at 32x64 too
 
 

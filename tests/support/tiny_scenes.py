@@ -1,4 +1,5 @@
-"""Procedural tiny scenes for the network/loss/training tests (no files, seconds to build)."""
+"""Procedural tiny scenes for the network, loss, training and robustness tests (no files, seconds to
+build), and a dataset of them on disk in ``phyir synth``'s format."""
 
 from __future__ import annotations
 
@@ -8,19 +9,7 @@ import torch
 
 from phyir.pano import directions, normals_from_depth
 from phyir.scene import PanoScene
-
-
-def box_depth(H: int, W: int, half: tuple[float, ...], centre: tuple[float, ...]) -> torch.Tensor:
-    """Radial depth [1,H,W] of an axis-aligned box room seen from ``centre``."""
-    d = directions(H, W, dtype=torch.float64)
-    t = torch.full((H, W), math.inf, dtype=torch.float64)
-    for a in range(3):
-        for sign in (-1.0, 1.0):
-            wall = sign * half[a] - centre[a]
-            with torch.no_grad():
-                ta = wall / d[a]
-            t = torch.where((ta > 0) & (ta < t), ta, t)
-    return t[None].float()
+from phyir.synth import analytic
 
 
 def ellipsoid_depth(H: int, W: int, half: tuple[float, ...]) -> torch.Tensor:
@@ -39,7 +28,12 @@ def tiny_scene(seed: int, H: int = 64, W: int = 128, grid: tuple[int, int] = (4,
         return torch.rand(*s, generator=g)
     half = (2 + 2 * float(r(())), 1.3 + 0.3 * float(r(())), 2 + 2 * float(r(())))
     centre = (0.5 * (2 * float(r(())) - 1), 0.2 * (2 * float(r(())) - 1), 0.5 * (2 * float(r(())) - 1))
-    depth = box_depth(H, W, half, centre) if room == "box" else ellipsoid_depth(H, W, half)
+    if room == "box":  # the box half-extents ``half`` around ``centre``, seen from the origin
+        lo = [-h - c for h, c in zip(half, centre)]
+        hi = [h - c for h, c in zip(half, centre)]
+        depth = analytic.box_room(H, W, lo, hi)[0].float()
+    else:
+        depth = ellipsoid_depth(H, W, half)
     normal = normals_from_depth(depth)
 
     def smooth(ch: int) -> torch.Tensor:
@@ -88,12 +82,3 @@ def write_dataset(root, n_train: int = 4, n_val: int = 2, **kw) -> None:
         save_scene(s, root / name)
         splits["train" if i < n_train else "val"].append(name)
     (root / "manifest.json").write_text(json.dumps({"generator": "tests", "splits": splits}))
-
-
-def one_thread():
-    """Generator for a module fixture: run with one torch thread (these tiny networks gain nothing
-    from two, and a busy 2-core machine makes two threads wait on each other), then restore."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)

@@ -10,8 +10,8 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from insert_fixtures import FLOOR_Y, box_room  # noqa: E402
-from test_viewer_scenes import cheap_render  # noqa: E402
+from support.scenes import FLOOR_Y, box_room  # noqa: E402
+from support.viewer import cheap_render  # noqa: E402
 
 from phyir import pano  # noqa: E402
 
@@ -19,13 +19,7 @@ pytestmark = pytest.mark.gl
 
 
 @pytest.fixture(scope="module")
-def app():
-    import moderngl
-
-    try:
-        moderngl.create_standalone_context(backend="egl", require=330).release()
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
+def app(egl):
     from viewer.app import App
 
     a = App((900, 520), headless=True, recent=False, render=cheap_render)

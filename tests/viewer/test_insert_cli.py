@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from insert_fixtures import box_room
+from support.scenes import box_room
 
 from phyir.cli import main
 from phyir.io import exr, save_panorama, save_scene
@@ -17,11 +17,7 @@ moderngl = pytest.importorskip("moderngl")
 
 
 @pytest.fixture(scope="module")
-def scene_file(tmp_path_factory):
-    try:
-        moderngl.create_standalone_context(backend="egl", require=330).release()
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
+def scene_file(egl, tmp_path_factory):
     path = tmp_path_factory.mktemp("insert") / "room.exr"
     save_scene(box_room(64, 128), path)
     return path

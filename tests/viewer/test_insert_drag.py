@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from insert_fixtures import box_room
+from support.scenes import box_room
 
 from phyir.insert import placement
 

@@ -8,12 +8,12 @@ spheres of the supplement's Table 2.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from insert_fixtures import TABLE_HI, TABLE_LO, box_room
+from support.paths import PANOS
+from support.scenes import TABLE_HI, TABLE_LO, box_room, lamp_probe
 
 from phyir import pano
 from phyir.insert import placement
@@ -29,7 +29,6 @@ from viewer.gl import glsl  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
 
 pytestmark = pytest.mark.gl
-PANOS = Path(__file__).resolve().parents[2] / "shared" / "panos"
 TOLERANCE = {"diffuse": 0.03, "matte_silver": 0.05, "mirror_silver": 0.05}
 
 
@@ -42,19 +41,6 @@ def renderer(ctx):
 
 def rel_l1(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a - b).abs().sum() / b.abs().sum())
-
-
-def lamp_probe(h: int = 16, w: int = 32) -> torch.Tensor:
-    """An HDR indoor-like probe: warm floor, cool walls, a window and two lamps 2x2 texels wide
-    (peak 40, ~100:1 over the walls; brighter single texels need far more than 1024 spp to converge)."""
-    d = pano.directions(h, w)
-    y = d[1]
-    env = torch.stack([0.25 + 0.15 * y, 0.22 + 0.15 * y, 0.18 + 0.25 * y]).clamp(min=0.03)
-    window = (d[0] > 0.55) & (y.abs() < 0.35)
-    env = torch.where(window, torch.tensor([3.0, 3.5, 4.5])[:, None, None], env)
-    env[:, 2:4, 5:7] = torch.tensor([40.0, 35.0, 25.0])[:, None, None]
-    env[:, 4:6, 20:22] = torch.tensor([15.0, 15.0, 18.0])[:, None, None]
-    return env
 
 
 def _probes():

@@ -3,19 +3,19 @@ interface calls; screenshots are checked pixel-wise."""
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
 import pytest
-import torch
 
 from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from test_viewer_scenes import box_room, cheap_render  # noqa: E402
+from support.scenes import box_room  # noqa: E402
+from support.viewer import FakeModel, cheap_render  # noqa: E402
 
+from phyir.color import linear_to_srgb  # noqa: E402
 from phyir.scene import PanoScene  # noqa: E402
 
 pytestmark = pytest.mark.gl
@@ -23,51 +23,8 @@ pytestmark = pytest.mark.gl
 SIZE = (1000, 600)
 
 
-def egl_or_skip():
-    import moderngl
-
-    try:
-        moderngl.create_standalone_context(backend="egl", require=330).release()
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-
-
-class FakeModel:
-    """Stands in for phyir.predict: returns the box room's layers after ``steps`` steps (each
-    ``busy`` seconds of real torch convolutions, else a short sleep), reporting progress and
-    honouring cancel; records what it was asked for."""
-
-    def __init__(self, truth: PanoScene, steps: int = 4, busy: float = 0.0, fail: bool = False):
-        self.truth, self.steps, self.busy, self.fail = truth, steps, busy, fail
-        self.calls: list[tuple[str, ...]] = []
-        self.started = threading.Event()
-        self.steps_done = 0
-
-    def __call__(self, scene, *, outputs, progress, cancel, **kw):
-        self.calls.append(tuple(outputs))
-        self.started.set()
-        x = torch.randn(1, 16, 128, 256)
-        conv = torch.nn.Conv2d(16, 16, 3, padding=1)
-        for k in range(self.steps):
-            end = time.perf_counter() + self.busy
-            while time.perf_counter() < end:
-                with torch.no_grad():
-                    x = torch.tanh(conv(x))
-            if not self.busy:
-                time.sleep(0.02)
-            self.steps_done += 1
-            progress(k / self.steps, f"step {k + 1}/{self.steps}")
-            if cancel.is_set():
-                raise RuntimeError("cancelled")
-        if self.fail:
-            raise RuntimeError("the network exploded")
-        out = {n: getattr(self.truth, n) * (1.1 if n == "probes" else 1.0) for n in outputs}
-        return PanoScene(image=scene.image, **out)
-
-
 @pytest.fixture(scope="module")
-def app():
-    egl_or_skip()
+def app(egl):
     from viewer.app import App
 
     a = App(SIZE, headless=True, recent=False, render=cheap_render)
@@ -79,7 +36,7 @@ def test_open_scene_switch_every_layer_and_check_depth_colours(app):
     from viewer.layers import LAYERS
     from viewer.renderer import colormap_lut
 
-    sc = box_room(64, 128)
+    sc = box_room(64, 128, variant="viewer")
     app.worker._render = None  # the real re-rendering (phyir.shading.render, split-sum) this once
     try:
         app.open(sc)
@@ -121,9 +78,7 @@ def test_open_scene_switch_every_layer_and_check_depth_colours(app):
 
 
 def test_pinned_probe_panel_shows_the_probe(app):
-    from test_viewer_gl import srgb
-
-    sc = box_room(128, 256)
+    sc = box_room(128, 256, variant="viewer")
     app.open(sc)
     assert app.wait_idle(60)
     app.set_layer("image")
@@ -149,7 +104,7 @@ def test_pinned_probe_panel_shows_the_probe(app):
     x0, y0, x1, y1 = app.gui.probe_rects[(0, "pred")]
     h, w = want.shape[1:]
     s = app.surface.scale
-    exp_rgb = srgb(want * 2.0**-2) * 255
+    exp_rgb = linear_to_srgb(want * 2.0**-2) * 255
     errs = []
     for i in range(h):
         for j in range(w):
@@ -167,7 +122,7 @@ def test_pinned_probe_panel_shows_the_probe(app):
 
 
 def test_ground_truth_probes_side_by_side(app):
-    truth = box_room(128, 256)
+    truth = box_room(128, 256, variant="viewer")
     model = FakeModel(truth)
     app.worker._predict = model
     try:
@@ -194,7 +149,7 @@ def test_ground_truth_probes_side_by_side(app):
 
 
 def test_view_is_redrawn_only_when_its_state_changes(app):
-    app.open(box_room(64, 128))
+    app.open(box_room(64, 128, variant="viewer"))
     assert app.wait_idle(60)
     app.set_layer("image")
     app.frame()
@@ -213,7 +168,7 @@ def test_view_is_redrawn_only_when_its_state_changes(app):
 
 
 def test_views_and_zoomed_pixel_values(app):
-    sc = box_room(64, 128)
+    sc = box_room(64, 128, variant="viewer")
     app.open(sc)
     assert app.wait_idle(60)
     app.set_layer("roughness")
@@ -261,12 +216,12 @@ def test_bad_files_show_an_error_and_the_app_keeps_running(app, tmp_path, kind):
     red = (banner[..., 0] > 110) & (banner[..., 1] < 40) & (banner[..., 2] < 40)
     assert red.sum() > 2000  # the red error banner over the view
     # still alive: a good scene opens and the banner goes
-    app.open(box_room(32, 64))
+    app.open(box_room(32, 64, variant="viewer"))
     assert app.wait_idle(30) and app.error is None and app.scene is not None
 
 
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):
-    truth = box_room(64, 128)
+    truth = box_room(64, 128, variant="viewer")
     partial = PanoScene(image=truth.image, depth=truth.depth, normal=truth.normal)
     model = FakeModel(truth, steps=30)
     app.worker._predict = model
@@ -285,7 +240,7 @@ def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):
 
 
 def test_model_failure_is_shown_and_layers_kept(app):
-    truth = box_room(64, 128)
+    truth = box_room(64, 128, variant="viewer")
     model = FakeModel(truth, fail=True)
     app.worker._predict = model
     try:
@@ -300,13 +255,13 @@ def test_model_failure_is_shown_and_layers_kept(app):
 
 
 def test_opening_another_file_cancels_the_running_job(app):
-    truth = box_room(64, 128)
+    truth = box_room(64, 128, variant="viewer")
     slow = FakeModel(truth, steps=400)
     app.worker._predict = slow
     try:
         app.open(PanoScene(image=truth.image))
         assert slow.started.wait(30)
-        app.open(box_room(32, 64))  # complete scene: no model needed
+        app.open(box_room(32, 64, variant="viewer"))  # complete scene: no model needed
         assert app.wait_idle(30)
     finally:
         app.worker._predict = None
@@ -321,7 +276,7 @@ def test_opening_another_file_cancels_the_running_job(app):
 
 def test_ui_keeps_drawing_during_inference(app, capsys):
     """Longest frame while a CPU-heavy model runs in the worker (reported, loosely bounded)."""
-    truth = box_room(64, 128)
+    truth = box_room(64, 128, variant="viewer")
     model = FakeModel(truth, steps=10, busy=0.25)
     app.worker._predict = model
     try:
@@ -338,13 +293,12 @@ def test_ui_keeps_drawing_during_inference(app, capsys):
     assert app.job_max_frame < 1.0
 
 
-def test_high_dpi_layout_scales(tmp_path):
-    egl_or_skip()
+def test_high_dpi_layout_scales(egl, tmp_path):
     from viewer.app import App
 
     a = App((500, 300), headless=True, scale=2.0, recent=False)
     try:
-        a.open(box_room(32, 64))
+        a.open(box_room(32, 64, variant="viewer"))
         assert a.wait_idle(30)
         a.frame()
         img = a.screenshot()

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from phyir import pano
+from phyir.color import linear_to_srgb
 
 moderngl = pytest.importorskip("moderngl")
 
@@ -182,11 +183,6 @@ def test_perspective_view_matches_pano_perspective_crop(renderer, fov, yaw, pitc
 # display transforms vs numpy
 
 
-def srgb(c):
-    c = np.clip(c, 0, 1)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
-
-
 def aces(x):
     x = np.maximum(x, 0)
     return np.clip((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0, 1)
@@ -226,7 +222,7 @@ def test_tone_maps_match_numpy(renderer, tonemap, exposure, offset):
     img = np.broadcast_to(vals[None], (2, len(vals), 3)).copy()
     got = displayed(renderer, img, Display(kind="hdr", tonemap=tonemap, exposure=exposure, offset=offset))
     x = img * 2.0**exposure + offset
-    want = 255 * (srgb(aces(x)) if tonemap == "aces" else srgb(x))
+    want = 255 * (linear_to_srgb(aces(x)) if tonemap == "aces" else linear_to_srgb(x))
     assert np.abs(got - want).max() <= 1.0
 
 
@@ -265,7 +261,7 @@ def test_normals_and_colours_display(renderer):
     assert np.abs(got - 255 * (0.5 * n + 0.5)).max() <= 1.0
     c = np.array([[[0.0, 0.5, 1.0], [0.2, 0.002, 0.7]]], np.float32)
     got = displayed(renderer, c, Display(kind="colour", exposure=3.0))  # exposure ignored
-    assert np.abs(got - 255 * srgb(c)).max() <= 1.0
+    assert np.abs(got - 255 * linear_to_srgb(c)).max() <= 1.0
 
 
 def test_markers_are_rings_at_their_positions(renderer):

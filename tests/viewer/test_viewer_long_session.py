@@ -36,7 +36,9 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from test_viewer_scenes import box_room, cheap_render  # noqa: E402
+from support.paths import PANOS  # noqa: E402
+from support.scenes import box_room  # noqa: E402
+from support.viewer import cheap_render  # noqa: E402
 
 from phyir import io  # noqa: E402
 from phyir.errors import PhyIRError  # noqa: E402
@@ -68,7 +70,7 @@ class QuickModel:
         H, W = scene.size
         room = self._rooms.get((H, W))
         if room is None:
-            room = self._rooms[(H, W)] = box_room(H, W)
+            room = self._rooms[(H, W)] = box_room(H, W, variant="viewer")
         for k in range(3):
             time.sleep(0.02)
             progress(k / 3, f"step {k + 1}/3")
@@ -138,15 +140,15 @@ class GLCounter:
 def make_files(tmp, panos: list) -> dict[str, object]:
     """The session's files: (path, what opening it must give)."""
     files = {}
-    sc = box_room(32, 64)
+    sc = box_room(32, 64, variant="viewer")
     io.save_scene(sc, tmp / "scene.exr")
     files["scene.exr"] = "ok"
-    synth = box_room(32, 64).replace(meta={"source": "phyir synth", "name": "synthetic"})
+    synth = box_room(32, 64, variant="viewer").replace(meta={"source": "phyir synth", "name": "synthetic"})
     io.save_scene(synth, tmp / "synth.exr")  # ground truth: predicted and compared (G)
     files["synth.exr"] = "ok"
-    io.save_panorama(box_room(32, 64).image, tmp / "room.hdr")
+    io.save_panorama(box_room(32, 64, variant="viewer").image, tmp / "room.hdr")
     files["room.hdr"] = "ok"
-    io.save_panorama(box_room(24, 48).image * 0.5, tmp / "room.png")
+    io.save_panorama(box_room(24, 48, variant="viewer").image * 0.5, tmp / "room.png")
     files["room.png"] = "ok"
     for p in panos[:1]:  # a real indoor panorama, reduced to 64 x 128
         from phyir.pano import resize_area
@@ -162,15 +164,7 @@ def make_files(tmp, panos: list) -> dict[str, object]:
     return files
 
 
-def test_random_session_of_500_actions(tmp_path, monkeypatch):
-    import moderngl
-
-    try:
-        moderngl.create_standalone_context(backend="egl", require=330).release()
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-    from conftest import PANOS
-
+def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
     from phyir.insert.objects import PRESETS, PRIMITIVES
     from viewer.app import App
     from viewer.insertion import FUSIONS

@@ -10,7 +10,6 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import pytest
 
@@ -18,19 +17,18 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from test_viewer_app import FakeModel, egl_or_skip  # noqa: E402
-from test_viewer_scenes import box_room, cheap_render  # noqa: E402
+from support.paths import REPO  # noqa: E402
+from support.scenes import box_room  # noqa: E402
+from support.viewer import FakeModel, cheap_render  # noqa: E402
 
 from phyir.scene import PanoScene  # noqa: E402
 
 pytestmark = pytest.mark.gl
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def app():
-    egl_or_skip()
+def app(egl):
     from viewer.app import App
 
     a = App((700, 420), headless=True, recent=False, render=cheap_render)
@@ -56,7 +54,7 @@ def _run_job(app, truth: PanoScene) -> list[tuple]:
 def test_a_loading_panorama_draws_no_new_shader_variant(app, size):
     app.set_layer("image")
     app.set_view("equirect")
-    assert _run_job(app, box_room(*size)) == []
+    assert _run_job(app, box_room(*size, variant="viewer")) == []
     # the job drew: the image in the view's cache, copied to the canvas
     drawn = {key[0][0] for key in app.renderer.variants}
     assert {"view.frag", "blit.frag"} <= drawn
@@ -68,7 +66,7 @@ def test_every_layer_view_tone_map_and_a_probe_were_drawn_at_start_up(app):
     from viewer.layers import LAYERS
     from viewer.renderer import TONEMAPS
 
-    _run_job(app, box_room(64, 128))
+    _run_job(app, box_room(64, 128, variant="viewer"))
     start = len(app.renderer.first_draws)
     app.pin_probe(40.5, 30.5)  # a marker on the view, the probe image in the panel
     for view in ("equirect", "perspective"):
@@ -88,11 +86,10 @@ def test_every_layer_view_tone_map_and_a_probe_were_drawn_at_start_up(app):
     app.unpin()
 
 
-def test_variant_classes_are_what_llvmpipe_compiles_for():
+def test_variant_classes_are_what_llvmpipe_compiles_for(egl):
     """The renderer's record tells variants apart as Mesa's llvmpipe does: a texture whose sides
     change power-of-two-ness (or channel count) costs a compile at its first draw; one in the same
     class does not.  In a fresh process with Mesa's shader disk cache off, CPU time of first draws."""
-    egl_or_skip()
     script = textwrap.dedent("""
         import json, time
         import moderngl, numpy as np
@@ -129,11 +126,10 @@ def test_variant_classes_are_what_llvmpipe_compiles_for():
         assert cpu[new] > 0.015 and cpu[new] > 5 * max(cpu["same class"], cpu["npot width again"]), cpu
 
 
-def test_a_real_job_imports_nothing_in_the_worker(tmp_path):
+def test_a_real_job_imports_nothing_in_the_worker(egl, tmp_path):
     """A fresh ``phyir-view`` process loads a panorama, runs the shipped model and the re-render:
     the worker thread imports no module (viewer.worker.preload did at start-up), and the heap the
     start-up built is out of the cyclic collector's reach (``gc.freeze``)."""
-    egl_or_skip()
     from phyir.learn.weights import default_weights_path
 
     if not default_weights_path().exists():
@@ -143,7 +139,7 @@ def test_a_real_job_imports_nothing_in_the_worker(tmp_path):
     from phyir import io
 
     path = tmp_path / "room.hdr"
-    io.save_panorama(box_room(64, 128).image.float().clamp(min=0), path)
+    io.save_panorama(box_room(64, 128, variant="viewer").image.float().clamp(min=0), path)
     del torch
     script = textwrap.dedent(f"""
         import gc, json, sys, threading

@@ -4,7 +4,6 @@ injected input events; and the ``phyir-view`` command line."""
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -16,37 +15,11 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # same process as the headless tests: PyOpenGL talks EGL, GLFW makes EGL contexts
 
-from test_viewer_scenes import box_room, cheap_render  # noqa: E402
+from support.paths import REPO  # noqa: E402
+from support.scenes import box_room  # noqa: E402
+from support.viewer import cheap_render  # noqa: E402
 
 pytestmark = pytest.mark.window
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-@pytest.fixture(scope="module")
-def display():
-    """A display for windows: $DISPLAY, else a private Xvfb, else skip."""
-    if os.environ.get("DISPLAY"):
-        yield os.environ["DISPLAY"]
-        return
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("no display and no Xvfb")
-    r, w = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x1000x24", "-nolisten", "tcp"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    with os.fdopen(r) as f:
-        num = f.readline().strip()
-    if not num:
-        proc.kill()
-        pytest.skip("Xvfb did not start")
-    os.environ["DISPLAY"] = f":{num}"
-    try:
-        yield os.environ["DISPLAY"]
-    finally:
-        del os.environ["DISPLAY"]
-        proc.terminate()
-        proc.wait(10)
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +27,7 @@ def scene_file(tmp_path_factory):
     from phyir import io
 
     path = tmp_path_factory.mktemp("scenes") / "box.exr"
-    io.save_scene(box_room(128, 256), path)
+    io.save_scene(box_room(128, 256, variant="viewer"), path)
     return path
 
 
@@ -298,7 +271,8 @@ def test_cli_bad_file_and_missing_layer(tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(bad) in err and len(err.strip().splitlines()) == 1
     assert (tmp_path / "o.png").exists()  # the screenshot shows the error in the window
-    io.save_scene(box_room(32, 64).replace(probes=None, albedo=None), tmp_path / "partial.exr")
+    partial = box_room(32, 64, variant="viewer").replace(probes=None, albedo=None)
+    io.save_scene(partial, tmp_path / "partial.exr")
     assert main([str(tmp_path / "partial.exr"), "--headless", "--no-model", "--layer", "specular",
                  "--screenshot", str(tmp_path / "o2.png")]) == 2
     err = capsys.readouterr().err

@@ -185,7 +185,7 @@ def test_peak_memory_cpu_sees_a_known_allocation():
     # in a fresh process with MALLOC_ENV, as the benchmarks measure: in this process, after the quick
     # run's render target, a 96 MB tensor measured +0.04 MB (its pages were resident already)
     mb = 96
-    code = ("import json, torch; from phyir import bench_measure as b; "
+    code = ("import json, torch; from phyir.bench import measure as b; "
             f"print(json.dumps(b.peak_memory(lambda: torch.ones({mb} * 2**18).sum(), 'cpu')))")
     env = {**os.environ, **bench_measure.MALLOC_ENV}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)

@@ -7,30 +7,26 @@ from __future__ import annotations
 import importlib.util
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
-from insert_fixtures import FLOOR_Y, ROOM_HI, ROOM_LO, TABLE_HI, TABLE_LO, _box_hits
+from support.paths import REPO
+from support.scenes import FLOOR_Y, TABLE_HI, TABLE_LO, room_with_table
 
 from phyir import pano
 from phyir.scene import PanoScene
 
 H, W = 256, 512
 _spec = importlib.util.spec_from_file_location(
-    "insert_gallery", Path(__file__).resolve().parents[1] / "benchmarks" / "insert_gallery.py")
+    "insert_gallery", REPO / "benchmarks" / "insert_gallery.py")
 gallery = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(gallery)
 
 
 def room_depth_normal() -> tuple[torch.Tensor, torch.Tensor]:
     """Exact radial depth [1,H,W] and normals [3,H,W] of the fixture room with its table ahead."""
-    d = pano.directions(H, W, dtype=torch.float64).reshape(3, -1).numpy()
-    t, n, _ = _box_hits(d, ROOM_LO, ROOM_HI, True)
-    tt, nt, ht = _box_hits(d, TABLE_LO, TABLE_HI, False)
-    use = ht & (tt < t)
-    t, n = np.where(use, tt, t), np.where(use[None], nt, n)
-    return (torch.from_numpy(t.reshape(1, H, W)).float(), torch.from_numpy(n.reshape(3, H, W)).float())
+    depth, normal, _ = room_with_table(H, W)
+    return depth.float(), normal.float()
 
 
 def scene_of(depth: torch.Tensor, normal: torch.Tensor) -> PanoScene:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from insert_fixtures import FLOOR_Y, TABLE_HI, TABLE_LO, box_room
+from support.scenes import FLOOR_Y, TABLE_HI, TABLE_LO, box_room
 
 from phyir import pano
 from phyir.errors import PhyIRError

@@ -7,7 +7,7 @@ import math
 
 import pytest
 import torch
-from nets_fixtures import one_thread, tiny_scenes
+from support.tiny_scenes import tiny_scenes
 
 from phyir.learn.datasets import normalize_scene
 from phyir.learn.losses import (
@@ -26,7 +26,7 @@ from phyir.learn.losses import (
 )
 from phyir.scene import PanoScene
 
-_one_thread = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_stage_weights_are_the_supplements():

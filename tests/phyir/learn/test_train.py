@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from nets_fixtures import one_thread, tiny_scenes, write_dataset
+from support.paths import REPO
+from support.tiny_scenes import tiny_scenes, write_dataset
 
 from phyir.errors import InputError, PhyIRError
 from phyir.learn.datasets import Augment, TensorSceneDataset, normalize_scene
@@ -25,12 +26,11 @@ from phyir.learn.weights import load_model, save_weights
 from phyir.nets import PhyIRModel
 from phyir.scene import PanoScene
 
-REPO = Path(__file__).resolve().parents[1]
 H, W, GRID, PROBE = 32, 64, (2, 4), (8, 16)
 ALL_TERMS = ("albedo", "roughness", "metallic", "depth", "normal", "depth_grad", "probe", "sc", "render")
 
 
-_one_thread = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _model(seed: int = 0) -> PhyIRModel:

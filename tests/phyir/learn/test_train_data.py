@@ -7,7 +7,7 @@ import json
 
 import pytest
 import torch
-from nets_fixtures import one_thread, tiny_scene, write_dataset
+from support.tiny_scenes import tiny_scene, write_dataset
 
 from phyir.color import KEY, aces, exposure_scale, luminance
 from phyir.errors import InputError
@@ -24,7 +24,7 @@ from phyir.learn.datasets import (
 from phyir.pano import solid_angles
 from phyir.transforms import mirror_lr, rotate_yaw
 
-_one_thread = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_exposure_normalisation():

@@ -6,7 +6,7 @@ import math
 
 import pytest
 import torch
-from insert_fixtures import box_room
+from support.scenes import box_room
 
 from phyir import pano
 from phyir.color import luminance

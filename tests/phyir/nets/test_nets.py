@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from nets_fixtures import one_thread, tiny_scene
+from support.tiny_scenes import tiny_scene
 
 from phyir.filters import box_sum, guided_filter
 from phyir.nets import PhyIRModel
@@ -17,7 +17,7 @@ GRID = (4, 8)
 LAYERS = ("depth", "normal", "albedo", "roughness", "metallic")
 
 
-_one_thread = pytest.fixture(scope="module", autouse=True)(one_thread)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,51 @@
+"""Stand-ins for the viewer tests: a fake model (``phyir.predict``) and a cheap re-render
+(``phyir.shading.render.render_scene``), both driven through the app's worker."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import torch
+
+from phyir.scene import PanoScene
+
+
+def cheap_render(scene: PanoScene) -> dict[str, torch.Tensor]:
+    """Stands in for phyir.shading.render.render_scene where its cost (seconds on 2 cores) buys nothing."""
+    diffuse = scene.albedo * scene.image.mean(0, keepdim=True)
+    specular = 0.1 * scene.roughness.expand(3, -1, -1) * scene.image
+    return {"diffuse": diffuse, "specular": specular, "image": diffuse + specular}
+
+
+class FakeModel:
+    """Stands in for phyir.predict: returns the box room's layers after ``steps`` steps (each
+    ``busy`` seconds of real torch convolutions, else a short sleep), reporting progress and
+    honouring cancel; records what it was asked for."""
+
+    def __init__(self, truth: PanoScene, steps: int = 4, busy: float = 0.0, fail: bool = False):
+        self.truth, self.steps, self.busy, self.fail = truth, steps, busy, fail
+        self.calls: list[tuple[str, ...]] = []
+        self.started = threading.Event()
+        self.steps_done = 0
+
+    def __call__(self, scene, *, outputs, progress, cancel, **kw):
+        self.calls.append(tuple(outputs))
+        self.started.set()
+        x = torch.randn(1, 16, 128, 256)
+        conv = torch.nn.Conv2d(16, 16, 3, padding=1)
+        for k in range(self.steps):
+            end = time.perf_counter() + self.busy
+            while time.perf_counter() < end:
+                with torch.no_grad():
+                    x = torch.tanh(conv(x))
+            if not self.busy:
+                time.sleep(0.02)
+            self.steps_done += 1
+            progress(k / self.steps, f"step {k + 1}/{self.steps}")
+            if cancel.is_set():
+                raise RuntimeError("cancelled")
+        if self.fail:
+            raise RuntimeError("the network exploded")
+        out = {n: getattr(self.truth, n) * (1.1 if n == "probes" else 1.0) for n in outputs}
+        return PanoScene(image=scene.image, **out)
