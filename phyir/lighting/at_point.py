@@ -27,7 +27,7 @@ from phyir.lighting.projection import DepthSurface, project_probes
 from phyir.scene import PanoScene, SceneError
 
 CACHE_SIZE = 256
-DRAFT_STEP = 0.05  # metres: while an object is dragged its light is read on this grid, one ray per texel
+DRAFT_STEP = 0.05  # metres: the grid a dragged object's light is read on (the viewer's drag quality)
 
 
 class LightAtPoint:
@@ -64,13 +64,13 @@ class LightAtPoint:
             out.append(fb if tuple(fb.shape[-2:]) == (h, w) else pano.resize_area(fb, h, w))
         return torch.stack(out)
 
-    def probes_at(self, points: Tensor, draft: bool = False) -> Tensor:
-        """``[N,3,h,w]`` probes at ``points [N,3]`` (float32, CPU).  ``draft``: at the nearest node of a
-        :data:`DRAFT_STEP` grid with one ray per texel (an object being dragged: most frames find
-        their probe cached)."""
+    def probes_at(self, points: Tensor, draft: bool = False, grid: float = 0.0) -> Tensor:
+        """``[N,3,h,w]`` probes at ``points [N,3]`` (float32, CPU).  ``draft``: one ray per texel;
+        ``grid`` > 0: at the nearest node of a grid of that step in metres (an object being dragged:
+        most frames find their probe cached, e.g. :data:`DRAFT_STEP`)."""
         pts = torch.as_tensor(points, dtype=torch.float32).reshape(-1, 3)
-        if draft:
-            pts = torch.round(pts / DRAFT_STEP) * DRAFT_STEP
+        if grid > 0:
+            pts = torch.round(pts / grid) * grid
         keys = [(draft, *(int(round(float(c) * 1000)) for c in p)) for p in pts]
         todo = [i for i, k in enumerate(keys) if k not in self._cache]
         if todo:
@@ -85,9 +85,9 @@ class LightAtPoint:
             self._cache.move_to_end(k)
         return torch.stack([self._cache[k] for k in keys])
 
-    def probe_at(self, point: Tensor, draft: bool = False) -> Tensor:
+    def probe_at(self, point: Tensor, draft: bool = False, grid: float = 0.0) -> Tensor:
         """The probe ``[3,h,w]`` at one point ``[3]`` (the :class:`ProbeField` interface)."""
-        return self.probes_at(torch.as_tensor(point).reshape(1, 3), draft)
+        return self.probes_at(torch.as_tensor(point).reshape(1, 3), draft, grid)[0]
 
 
 def light_at(scene: PanoScene, points: Tensor, size: tuple[int, int] | None = None) -> Tensor:

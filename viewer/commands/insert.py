@@ -70,8 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from phyir.errors import InputError
     from phyir.insert import views  # GL and trimesh are imported only here
+    from viewer.gl.quality import DRAFT_EXPORT
     from viewer.gl.window import gl_context
-    from viewer.insertion import DRAGGING, FULL, InsertionRenderer
+    from viewer.insertion import FULL, InsertionRenderer
 
     t0 = time.perf_counter()
     scene = views.load_insert_scene(args.input, weights=args.weights)
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     renderer = InsertionRenderer(ctx)
     try:
         renderer.set_scene(scene)
-        quality = FULL if args.quality == "full" else DRAGGING
+        quality = FULL if args.quality == "full" else DRAFT_EXPORT
         spec = views.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
         meta = {"input": args.input, "object": args.object, "material": obj.material.as_text(),
                 "scale": f"{obj.scale:g}", "fusion": args.fusion}

@@ -106,9 +106,9 @@ class ObjectStates:
             st.obj = obj
             return st
         centre, radius = obj.bounding_sphere()
-        # while dragging (relight_tolerance > 0) the light is read on a coarse grid, mostly cached
-        draft = quality.relight_tolerance > 0
-        raw = self.field.probe_at(torch.as_tensor(centre, dtype=torch.float32), draft=draft)
+        # while dragging: one ray per texel, on the light grid (mostly cached)
+        raw = self.field.probe_at(torch.as_tensor(centre, dtype=torch.float32),
+                                  draft=quality.light_grid > 0, grid=quality.light_grid)
         same_shape = st is not None and st.key[:2] == key[:2] and st.key[-1] == key[-1]
         if same_shape and quality.relight_tolerance > 0:
             change = float((raw - st.raw_probe).abs().sum() / st.raw_probe.abs().sum().clamp(min=1e-12))

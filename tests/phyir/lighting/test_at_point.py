@@ -57,7 +57,8 @@ def test_probes_are_cached_by_position_and_drafts_snap_to_their_grid():
     lap = LightAtPoint(room())
     a = lap.probe_at(torch.tensor([0.1, -0.5, -1.0]))
     assert lap.probe_at(torch.tensor([0.1, -0.5, -1.0])) is not None and len(lap._cache) == 1
-    d1 = lap.probe_at(torch.tensor([0.101, -0.5, -1.0]), draft=True)
-    d2 = lap.probe_at(torch.tensor([0.1 + 0.4 * DRAFT_STEP, -0.5, -1.0]), draft=True)
-    assert torch.equal(d1, d2) and len(lap._cache) == 2
+    assert a.shape == (3, *lap.probe_size)
+    d1 = lap.probe_at(torch.tensor([0.101, -0.5, -1.0]), draft=True, grid=DRAFT_STEP)
+    d2 = lap.probe_at(torch.tensor([0.1 + 0.4 * DRAFT_STEP, -0.5, -1.0]), draft=True, grid=DRAFT_STEP)
+    assert torch.equal(d1, d2) and len(lap._cache) == 2 and d1.shape == a.shape
     assert float((d1 - a).abs().sum() / a.sum()) < 0.05  # one ray per texel: close to full quality
