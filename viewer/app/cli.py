@@ -32,7 +32,23 @@ def _uv(text: str) -> tuple[float, float]:
         u, v = (float(t) for t in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected U,V (panorama column,row), got {text!r}") from None
+    if not (math.isfinite(u) and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected finite U,V, got {text!r}")
     return u, v
+
+
+def _bounded(lo: float, hi: float, what: str):
+    """An argparse type: a finite float in [lo, hi]."""
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(x) and lo <= x <= hi):
+            raise argparse.ArgumentTypeError(f"{what} must be a finite number in [{lo:g}, {hi:g}], "
+                                             f"got {text!r}")
+        return x
+    return parse
 
 
 def parser() -> argparse.ArgumentParser:
@@ -45,12 +61,16 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--probe", type=_uv, action="append", default=[], metavar="U,V",
                    help="pin the probe at panorama column U, row V (repeatable)")
     p.add_argument("--view", choices=("equirect", "perspective"), help="view")
-    p.add_argument("--yaw", type=float, help="perspective view: yaw in degrees (toward +x)")
-    p.add_argument("--pitch", type=float, help="perspective view: pitch in degrees (up)")
-    p.add_argument("--fov", type=float, help="perspective view: vertical field of view in degrees")
-    p.add_argument("--zoom", type=float, help="equirect view: screen pixels per panorama pixel (default fit)")
+    p.add_argument("--yaw", type=_bounded(-3600, 3600, "--yaw"),
+                   help="perspective view: yaw in degrees (toward +x)")
+    p.add_argument("--pitch", type=_bounded(-90, 90, "--pitch"),
+                   help="perspective view: pitch in degrees (up)")
+    p.add_argument("--fov", type=_bounded(1, 179, "--fov"),
+                   help="perspective view: vertical field of view in degrees (1..179)")
+    p.add_argument("--zoom", type=_bounded(1e-3, 1e3, "--zoom"),
+                   help="equirect view: screen pixels per panorama pixel (default fit)")
     p.add_argument("--center", type=_uv, metavar="U,V", help="equirect view: panorama point at the centre")
-    p.add_argument("--exposure", type=float, help="exposure in EV")
+    p.add_argument("--exposure", type=_bounded(-64, 64, "--exposure"), help="exposure in EV")
     p.add_argument("--tonemap", choices=TONEMAPS, help="tone map of HDR layers")
     p.add_argument("--colormap", choices=COLORMAPS, help="colour map of scalar layers")
     p.add_argument("--compare", action="store_true",
@@ -143,6 +163,10 @@ def _apply_args(app: App, args, wait: bool) -> None:
         if args.zoom:
             eq.zoom_about(args.zoom / eq.zoom, app.view_size())
         if args.center:
+            H, W = app.size
+            if not (0 <= args.center[0] <= W and 0 <= args.center[1] <= H):
+                raise PhyIRError(f"--center {args.center[0]:g},{args.center[1]:g}: outside the {W}x{H} "
+                                 "panorama")
             eq.center = args.center
     if args.show:
         app.set_source(args.show == "truth")
@@ -154,7 +178,11 @@ def _apply_args(app: App, args, wait: bool) -> None:
         for name in app.scalar:
             app.set_colormap(args.colormap, name)
     if wait:
+        H, W = app.size
         for u, v in args.probe:
+            if not (0 <= u < W and 0 <= v < H):
+                raise PhyIRError(f"--probe {u:g},{v:g}: outside the {W}x{H} panorama "
+                                 f"(columns 0..{W - 1}, rows 0..{H - 1})")
             app.pin_probe(u, v)
 
 

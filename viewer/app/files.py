@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from phyir.scene import PanoScene
 from viewer.app.common import gl_current
@@ -41,7 +42,7 @@ class FileActions:
             self.path = os.fspath(source)
             self.name = name or Path(self.path).name
         if gt is not None:
-            self._set_gt(gt.detach().cpu().float() if not gt.batched else gt[0])
+            self._set_gt((gt if not gt.batched else gt[0]).detach().to("cpu", torch.float32))
         self.progress = (None, f"opening {self.name}")
         self.busy = True
         self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
