@@ -162,7 +162,7 @@ def _apply_args(app: App, args, wait: bool) -> None:
         eq = app.views["equirect"]
         if args.zoom:
             eq.zoom_about(args.zoom / eq.zoom, app.view_size())
-        if args.center:
+        if args.center and app.size is not None:
             H, W = app.size
             if not (0 <= args.center[0] <= W and 0 <= args.center[1] <= H):
                 raise PhyIRError(f"--center {args.center[0]:g},{args.center[1]:g}: outside the {W}x{H} "
@@ -177,7 +177,7 @@ def _apply_args(app: App, args, wait: bool) -> None:
     if args.colormap:
         for name in app.scalar:
             app.set_colormap(args.colormap, name)
-    if wait:
+    if wait and app.size is not None:  # (no size: the file failed to open, app.error says why)
         H, W = app.size
         for u, v in args.probe:
             if not (0 <= u < W and 0 <= v < H):
