@@ -21,15 +21,9 @@ import numpy as np
 import torch
 
 from phyir import io, pano
-from phyir.color import linear_to_srgb, luminance, srgb_to_linear
+from phyir.color import luminance
+from phyir.evaluation.real import ldr_copy
 from phyir.lighting.hdr_recovery import clipped_regions
-
-
-def ldr_copy(hdr: torch.Tensor) -> tuple[torch.Tensor, float]:
-    """The auto-exposed 8-bit copy (linear) and the exposure factor."""
-    s = 0.18 / max(float(luminance(hdr).median()), 1e-12)
-    enc = np.round(np.clip(linear_to_srgb((hdr * s).numpy()), 0, 1) * 255) / 255
-    return torch.from_numpy(srgb_to_linear(enc)), s
 
 
 def regions(hdr: torch.Tensor) -> list[tuple[float, float]]:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from phyir import pano
+from phyir import color, pano
 from phyir.errors import InputError, PhyIRError
 from phyir.insert import placement
 from phyir.insert.objects import SceneObject, object_mesh, parse_material
@@ -38,7 +38,7 @@ MIN_FOV, MAX_FOV = 10.0, 150.0        # perspective field of view limits, degree
 MIN_ZOOM, MAX_ZOOM = 1 / 64, 256.0    # equirect zoom limits, screen px per panorama px
 MAX_PITCH = math.radians(89.0)
 GIF_WIDTH = 512
-LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+LUMA = np.array(color.LUMA, np.float32)  # phyir.color.LUMA, for numpy images [..., 3]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -298,8 +298,6 @@ class ViewSpec:
 def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """uint8 sRGB of linear ``rgb [h,w,3]``: ``2^exposure`` x ACES (Narkowicz fit, as the viewer's
     colour.glsl); ``exposure`` None: the median luminance maps to 0.18."""
-    from phyir.color import linear_to_srgb
-
     x = np.maximum(rgb, 0)
     if exposure is None:
         lum = x @ LUMA
@@ -307,9 +305,7 @@ def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
         k = 0.18 / max(med, 1e-12)
     else:
         k = 2.0 ** exposure
-    x = x * k
-    x = np.clip((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0, 1)
-    return np.round(linear_to_srgb(x) * 255).astype(np.uint8)
+    return np.round(color.linear_to_srgb(color.aces(x * k)) * 255).astype(np.uint8)
 
 
 def write_passes(out: dict[str, np.ndarray], path: str, exposure: float | None,

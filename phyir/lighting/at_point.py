@@ -47,12 +47,6 @@ class LightAtPoint:
         self.supersample, self.steps = supersample, steps
         self._cache: OrderedDict[tuple, Tensor] = OrderedDict()
 
-    def weights(self, point: Tensor) -> tuple[Tensor, Tensor]:
-        """The learned probes blended for the unseen share (see :meth:`ProbeField.weights`)."""
-        if self.field is None:
-            raise SceneError("LightAtPoint: the scene has no probes")
-        return self.field.weights(point)
-
     def fallback(self, points: Tensor) -> Tensor:
         """``[N,3,h,w]`` learned probes at ``points [N,3]`` (zeros without probes)."""
         h, w = self.probe_size
