@@ -220,6 +220,26 @@ def test_bad_files_show_an_error_and_the_app_keeps_running(app, tmp_path, kind):
     assert app.wait_idle(30) and app.error is None and app.scene is not None
 
 
+def test_a_file_that_fails_to_open_keeps_the_scene_that_was_open(app, tmp_path):
+    good = box_room(32, 64, variant="viewer")
+    app.open(good, name="kept")
+    assert app.wait_idle(30) and app.error is None
+    app.set_layer("image")
+    before = app.screenshot()
+    scene, name = app.scene, app.name
+    bad = tmp_path / "broken.exr"
+    bad.write_bytes(b"v/1\x01" + bytes(200))
+    app.open(bad)
+    assert app.wait_idle(30)
+    assert app.error is not None and str(bad) in app.error
+    assert app.scene is scene and app.name == name == "kept" and app.path is None
+    assert any(m.text == "still showing kept" for m in app.messages)
+    app.error = None  # the banner dismissed: the same picture as before
+    after = app.screenshot()
+    x, y, w, h = app.view_rect()
+    assert np.abs(after[y : y + h, x : x + w].astype(int) - before[y : y + h, x : x + w]).mean() < 1
+
+
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):
     truth = box_room(64, 128, variant="viewer")
     partial = PanoScene(image=truth.image, depth=truth.depth, normal=truth.normal)

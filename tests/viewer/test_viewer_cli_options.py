@@ -40,3 +40,49 @@ def test_gt_opens_a_ground_truth_scene(scene_file, tmp_path):
     rc = main([str(scene_file), "--gt", str(scene_file), "--no-model", "--headless",
                "--screenshot", str(out)])
     assert rc == 0 and out.stat().st_size > 1000
+
+
+def test_object_options_belong_to_the_object_before_them(capsys):
+    from viewer.app.cli_objects import ObjectSpec
+
+    args = parser().parse_args(["s.exr", "--object", "sphere", "--at", "10,5", "--scale", "0.1",
+                                "--object", "cube", "--position", "0,-1,-2", "--material", "mirror-silver",
+                                "--object", "chair.glb"])
+    assert args.objects == [ObjectSpec("sphere", at=(10.0, 5.0), scale=0.1),
+                            ObjectSpec("cube", position=(0.0, -1.0, -2.0), material="mirror-silver"),
+                            ObjectSpec("chair.glb")]
+    for bad, says in ((["--at", "1,2"], "--at needs an --object before it"),
+                      (["--object", "sphere", "--at", "1,2", "--position", "0,0,-1"], "one of --at or --position"),
+                      (["--object", "sphere", "--scale", "nan"], "--scale"),
+                      (["--object", "sphere", "--scale", "1e30"], "--scale"),
+                      (["--object", "sphere", "--position", "0,inf,1"], "--position: expected 3 finite")):
+        with pytest.raises(SystemExit) as e:
+            parser().parse_args(["s.exr", *bad])
+        assert e.value.code == 2
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_object_on_the_command_line_is_inserted_in_the_screenshot(scene_file, tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    shots = {}
+    for name, extra in (("plain", []), ("sphere", ["--object", "sphere", "--at", "32,26", "--scale", "0.4",
+                                                    "--material", "0.9,0.1,0.1,0.5,0"])):
+        out = tmp_path / f"{name}.png"
+        assert main([str(scene_file), "--no-model", "--headless", "--no-ui", "--size", "512x256",
+                     "--screenshot", str(out), *extra]) == 0
+        shots[name] = np.asarray(Image.open(out)).astype(int)
+    changed = np.abs(shots["sphere"] - shots["plain"]).sum(-1) > 30
+    rows, cols = np.nonzero(changed)
+    assert changed.sum() > 200  # the red ball (and its shadow) is there ...
+    assert rows.min() > 256 * 0.45 and abs(np.median(cols) - 256) < 40  # ... below the horizon at column 32
+    red = shots["sphere"][changed]
+    assert (red[:, 0] > red[:, 1] + 20).mean() > 0.5
+
+
+def test_object_that_cannot_be_loaded_is_a_one_line_error(scene_file, tmp_path, capsys):
+    rc = main([str(scene_file), "--no-model", "--headless", "--screenshot", str(tmp_path / "s.png"),
+               "--object", str(tmp_path / "nothere.obj")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "nothere.obj" in err[0]

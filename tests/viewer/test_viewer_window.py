@@ -277,3 +277,20 @@ def test_cli_bad_file_and_missing_layer(tmp_path, capsys):
                  "--screenshot", str(tmp_path / "o2.png")]) == 2
     err = capsys.readouterr().err
     assert "specular" in err and "not available" in err
+
+
+def test_f12_saves_a_screenshot_next_to_the_file(app, scene_file):
+    from imgui_bundle import imgui
+
+    app.open(scene_file)
+    assert app.wait_idle(60) and app.error is None
+    out = scene_file.with_name(f"box.{app.layer}.png")
+    out.unlink(missing_ok=True)
+    press(app, imgui.Key.f12)  # was imgui's "Forgot to call Render()" assertion: a frame inside a frame
+    assert app.error is None, app.error
+    assert out.is_file() and any(m.text == f"saved {out}" for m in app.messages)
+    from PIL import Image
+
+    shot = np.asarray(Image.open(out))
+    assert shot.shape[:2] == app.surface.framebuffer_size[::-1] and shot.std() > 3
+

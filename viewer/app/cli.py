@@ -10,6 +10,7 @@ import sys
 import time
 
 from phyir.errors import PhyIRError
+from viewer.app import cli_objects
 from viewer.app.common import gl_current
 from viewer.app.core import App
 from viewer.gl import window as surfaces
@@ -92,6 +93,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="torch threads for inference (default: cores - 1)")
     p.add_argument("--bench", action="store_true",
                    help="print frame times (idle view, and while the model runs) and exit")
+    cli_objects.add_arguments(p)
     return p
 
 
@@ -184,6 +186,10 @@ def _apply_args(app: App, args, wait: bool) -> None:
                 raise PhyIRError(f"--probe {u:g},{v:g}: outside the {W}x{H} panorama "
                                  f"(columns 0..{W - 1}, rows 0..{H - 1})")
             app.pin_probe(u, v)
+    if wait:
+        cli_objects.add_objects(app, args.objects)
+    elif args.objects:
+        app.queue_objects(args.objects)
 
 
 def _bench(app: App, args) -> int:

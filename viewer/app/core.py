@@ -70,6 +70,8 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
             self.renderer.warm_up(self.surface.target())
         self.title = title
         self.last_capture: np.ndarray | None = None
+        self._opening = None  # the file being opened (viewer.app.files), until it loads or fails
+        self._screenshot_request: str | None = None  # F12 / the menu: saved after the frame
         model_kw = {k: v for k, v in (("weights", weights), ("device", device)) if v is not None}
         preload()  # what jobs would import in the worker, holding the GIL the UI needs
         self.worker = Worker(wake=getattr(self.surface, "wake", None), predict=predict, render=render,
@@ -223,6 +225,8 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
             self.job_max_frame = max(self.job_max_frame, dt)
             self.job_frames += 1
         self._redraw = max(0, self._redraw - 1)
+        if self._screenshot_request is not None and not capture:
+            self._save_requested_screenshot()
         return dt
 
     @gl_current

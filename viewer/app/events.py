@@ -20,6 +20,7 @@ class WorkerEvents:
         return bool(events)
 
     def _on_loaded(self, loaded: Loaded) -> None:
+        self._begin_opened()
         self.scene = loaded.scene
         self.path, self.name = loaded.path, loaded.name
         self.arrays = dict(loaded.arrays)
@@ -98,6 +99,8 @@ class WorkerEvents:
 
     def _on_failed(self, event: Failed) -> None:
         self.note("error", event.text if event.stage == "loading" else f"{event.stage} failed: {event.text}")
+        if event.stage == "loading":
+            self._open_failed()
         self.busy, self.progress = False, None
         self.timings["job"] = time.perf_counter() - self._job_start
 
@@ -105,6 +108,7 @@ class WorkerEvents:
         self.busy, self.progress = False, None
         self.timings["job"] = time.perf_counter() - self._job_start
         self._refresh_pins()
+        self._add_queued_objects()
 
     # each event type's handler (functions of this class body, called with the App)
     _handlers = {Loaded: _on_loaded, Progress: _on_progress, LayersReady: _on_layers, GroundTruth: _on_gt,

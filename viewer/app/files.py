@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,15 @@ import torch
 from phyir.scene import PanoScene
 from viewer.app.common import gl_current
 from viewer.layers import auto_ranges, scene_arrays
+
+
+@dataclass(frozen=True)
+class _Opening:
+    """A file being opened: what to show and compare with once it has loaded."""
+
+    path: str | None
+    name: str
+    gt: PanoScene | None
 
 
 class FileActions:
@@ -33,22 +43,37 @@ class FileActions:
         scene to compare with; ``compare``: treat the file's own layers as ground truth and predict
         all layers (default: only for complete synthetic scenes)."""
         self.worker.cancel()
-        self._clear()
         self.error = None
         if isinstance(source, PanoScene):
-            self.name = name or source.meta.get("name", "scene")
-            self.path = None
+            path, shown = None, name or source.meta.get("name", "scene")
         else:
-            self.path = os.fspath(source)
-            self.name = name or Path(self.path).name
-        if gt is not None:
-            self._set_gt((gt if not gt.batched else gt[0]).detach().to("cpu", torch.float32))
-        self.progress = (None, f"opening {self.name}")
+            path = os.fspath(source)
+            shown = name or Path(path).name
+        if self.scene is None:  # nothing to keep: show the new name at once
+            self._clear()
+            self.path, self.name = path, shown
+        # the current scene stays until the new one has loaded (a file that fails to open keeps it)
+        self._opening = _Opening(path, shown, None if gt is None else
+                                 (gt if not gt.batched else gt[0]).detach().to("cpu", torch.float32))
+        self.progress = (None, f"opening {shown}")
         self.busy = True
         self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
         self._job_start = time.perf_counter()
         self.worker.start(source, name=name, compare=compare, run_model=self.run_model)
         self._title()
+
+    def _begin_opened(self) -> None:
+        """The file being opened has loaded: the previous scene goes, the given ground truth comes."""
+        opening, self._opening = self._opening, None
+        self._clear()
+        if opening is not None and opening.gt is not None:
+            self._set_gt(opening.gt)
+
+    def _open_failed(self) -> None:
+        """The file being opened could not be read: keep showing the current scene."""
+        opening, self._opening = self._opening, None
+        if opening is not None and self.scene is not None:
+            self.note("info", f"still showing {self.name}")
 
     def _clear(self) -> None:
         for tex in self._textures.values():
@@ -78,9 +103,31 @@ class FileActions:
         """Stop the running job (keeps the layers that arrived)."""
         if self.busy:
             self.worker.cancel()
+            self._opening = None
             self.busy = False
             self.progress = None
             self.note("info", "cancelled")
+
+    def request_screenshot(self, path: str | os.PathLike | None = None) -> None:
+        """Save a screenshot after the frame being built (F12, the menu): ``screenshot`` draws frames
+        itself, which it cannot do from inside the UI's frame (imgui's frame is open)."""
+        if path is None:
+            stem = os.path.splitext(self.path or "phyir-view")[0]
+            path = f"{stem}.{self.layer}.png"
+        self._screenshot_request = os.fspath(path)
+        self.request_redraw()
+
+    def _save_requested_screenshot(self) -> None:
+        """After a frame: the screenshot asked for while it was built, with a note on the outcome."""
+        out, self._screenshot_request = self._screenshot_request, None
+        if out is None:
+            return
+        try:
+            self.screenshot(out)
+        except OSError as e:  # e.g. a read-only folder: report, keep running
+            self.note("error", f"cannot save {out}: {e.strerror or e}")
+            return
+        self.note("info", f"saved {out}")
 
     @gl_current
     def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:

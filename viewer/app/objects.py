@@ -3,6 +3,9 @@ pass, which the App puts first among the renderer's overlay passes."""
 
 from __future__ import annotations
 
+from phyir.errors import PhyIRError
+from viewer.app import cli_objects
+
 
 class InsertedObjects:
     """Part of :class:`viewer.app.App`: wiring the inserted objects into the view."""
@@ -13,6 +16,7 @@ class InsertedObjects:
 
         with self.surface.current():
             self.objects = ObjectsPanel(self)
+        self._queued_objects = []
         self.renderer.overlay_passes.insert(0, self.objects.hook)
 
     def _detach_objects(self) -> None:
@@ -24,3 +28,19 @@ class InsertedObjects:
     def objects_active(self) -> bool:
         """Objects are drawn: the view's picture depends on them (no cached frames)."""
         return self.objects.active()
+
+    def queue_objects(self, specs: list) -> None:
+        """Objects to insert once the scene has depth and probes (``phyir-view --object ...`` with a
+        window: the model may still be running); a one-line error banner if one can't be added."""
+        self._queued_objects = list(specs)
+        self._add_queued_objects()
+
+    def _add_queued_objects(self) -> None:
+        if not self._queued_objects or not self.objects.sync():
+            return
+        specs, self._queued_objects = self._queued_objects, []
+        try:
+            cli_objects.add_objects(self, specs)
+        except PhyIRError as e:
+            self.note("error", str(e))
+

@@ -41,6 +41,11 @@ class Gui(MenuBar, ViewInput, SidePanel, StatusBar):
         style.scale_all_sizes(self.scale)
         style.font_scale_dpi = self.scale
         style.window_rounding = 0.0
+        # a thin, translucent slider grab: the default one covers a digit of the value ("+0.▮ EV")
+        style.grab_min_size = 3.0 * self.scale
+        for col in (imgui.Col_.slider_grab, imgui.Col_.slider_grab_active):
+            c = style.color_(col)
+            style.set_color_(col, imgui.ImVec4(c.x, c.y, c.z, 0.45))
         if app.window is not None:
             from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
 

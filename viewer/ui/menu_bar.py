@@ -110,14 +110,7 @@ class MenuBar:
                 self.app.open(files[0])
 
     def _save_screenshot(self) -> None:
-        app = self.app
-        stem = os.path.splitext(app.path or "phyir-view")[0]
-        out = f"{stem}.{app.layer}.png"
-        try:
-            app.screenshot(out)
-            app.note("info", f"saved {out}")
-        except Exception as e:  # noqa: BLE001 - e.g. a read-only folder: report, keep running
-            app.note("error", f"cannot save {out}: {e}")
+        self.app.request_screenshot()
 
     def _quit(self) -> None:
         self.quit_requested = True
