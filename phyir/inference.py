@@ -54,6 +54,10 @@ MAX_PREDICT_SIZE = (4096, 8192)
 # training data) and is replaced by the normals of the predicted depth.
 MAX_AWAY_SHARE = 0.05
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
+# the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
+# 32, W = 2H, at most this; the lite model peaks at ~PEAK_MB_PER_NET_MPX MB per net megapixel
+# (docs/robustness.md), so 1024x2048 stays near 2 GB while 4096x8192 needed 4.6 GB and failed
+MAX_NET_SIZE = (1024, 2048)
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
 
@@ -93,7 +97,7 @@ def load_cached_model(weights: str | os.PathLike | None = None, device: str | to
     if side.is_file():
         try:
             res = json.loads(side.read_text())["data"]["resolution"]
-            net_size = tuple(int(x) for x in str(res).split("x"))  # type: ignore[assignment]
+            net_size = check_net_size(tuple(int(x) for x in str(res).split("x")), "data.resolution")
         except KeyError:
             pass  # no recorded resolution: the default
         except (TypeError, ValueError) as e:  # (json.JSONDecodeError is a ValueError)
@@ -150,6 +154,20 @@ def check_predict_size(path: str | os.PathLike | None, H: int, W: int) -> None:
     if H * W > Hm * Wm:
         raise InputError(path, f"{H}x{W} is too large to predict at full resolution (at most {Hm}x{Wm}, "
                                "which needs ~5 GB of memory); resize the panorama first")
+
+
+def check_net_size(size, what: str | os.PathLike | None = "net_size") -> tuple[int, int]:
+    """``size`` (H, W) as the networks can run it: H a multiple of 32 from 32 to
+    :data:`MAX_NET_SIZE`, W = 2H; else a one-line InputError naming ``what``."""
+    try:
+        H, W = (int(x) for x in size)
+    except (TypeError, ValueError):
+        raise InputError(what, f"expected a network size (H, W), got {size!r}") from None
+    Hm, Wm = MAX_NET_SIZE
+    if not (32 <= H <= Hm and H % 32 == 0 and W == 2 * H):
+        raise InputError(what, f"network size {H}x{W} is not possible: need H a multiple of 32 from 32 "
+                               f"to {Hm} and W = 2H (at most {Hm}x{Wm})")
+    return H, W
 
 
 def net_size_for(H: int, default: tuple[int, int]) -> tuple[int, int]:
@@ -313,7 +331,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
 
     model, dev, trained = _model_and_device(opts)
     clock.step("model", 0.1)
-    Hn, Wn = opts.net_size or net_size_for(scene.size[0], trained)
+    Hn, Wn = check_net_size(opts.net_size) if opts.net_size else net_size_for(scene.size[0], trained)
     img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
     x = pano.resize_area(img, Hn, Wn).to(dev)
     s = float(exposure_scale(x)) if is_hdr else 1.0
@@ -420,24 +438,21 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     """The probes to return: a grid [Hp,Wp,3,h,w] or, for ``probes="points"``, [N,1,3,h,w]."""
     assert net.lnet_grid is not None
     lnet_grid = net.lnet_grid.cpu()
-    s = net.scale
-    if plan.lighting == "projection":
-        # in exposure-normalised units, like the networks: sums over a panorama of radiance
-        # near float32's limit would overflow
-        proj_scene = PanoScene(image=net.image.cpu() * s, depth=geo.get("depth", out.depth),
+    if plan.lighting == "projection":  # (DepthSurface works in exposure-normalised units itself)
+        proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
                                normal=geo.get("normal", out.normal))
     if opts.probes == "grid":
         if plan.lighting != "projection":
             return lnet_grid
         from phyir.lighting.projection import projected_probe_grid
 
-        return projected_probe_grid(proj_scene, lnet_grid * s) / s
+        return projected_probe_grid(proj_scene, lnet_grid)
     pts = opts.points.reshape(-1, 3).float().cpu()
     fb = lnet_probes_at(lnet_grid, pts)
     if plan.lighting == "projection":
         from phyir.lighting.projection import project_probes
 
-        fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb * s)[0] / s
+        fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb)[0]
     return fb[:, None]
 
 

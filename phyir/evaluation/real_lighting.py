@@ -66,19 +66,15 @@ def probe_field_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, i
 
 
 def projection_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]) -> Tensor:
-    """The panorama projected from each point along the predicted depth, LNet's probe where unseen.
-
-    Done in exposure-normalised units like :func:`phyir.predict` does (sums of bright HDR radiance
-    over a panorama approach float32's range), then brought back."""
-    from phyir.color import exposure_scale
+    """The panorama projected from each point along the predicted depth, LNet's grid probe where
+    unseen (what ``phyir predict --lighting projection`` writes; :func:`light_at_point` falls back
+    to the interpolated probe field instead)."""
     from phyir.inference import lnet_probes_at
     from phyir.lighting.projection import project_probes
 
-    s = float(exposure_scale(scene.image))
     pts = points.reshape(-1, 3).float()
-    fallback = _at_size(lnet_probes_at(scene.probes, pts), probe_size) * s
-    proj = PanoScene(image=scene.image * s, depth=scene.depth, normal=scene.normal)
-    return project_probes(proj, pts, probe_size, fallback)[0] / s
+    fallback = _at_size(lnet_probes_at(scene.probes, pts), probe_size)
+    return project_probes(scene, pts, probe_size, fallback)[0]
 
 
 def light_at_point(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]) -> Tensor:

@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
+from phyir.color import exposure_scale
 from phyir.scene import PROBE_OFFSET, PanoScene, SceneError
 
 # ---------------------------------------------------------------------------------------------
@@ -96,6 +97,9 @@ class DepthSurface:
     r_bound: float  # radius of a sphere around the camera containing the whole depth surface
     jump_threshold: float  # cells with a larger relative jump are discontinuities
     sources: BrightSources | None = None  # bright radiance splatted instead of ray-sampled
+    # mips and sources are stored x this (median luminance -> KEY): sums of extreme HDR radiance
+    # over many rays stay inside float32's range; project_probes gives results in the scene's units
+    radiance_scale: float = 1.0
 
     @staticmethod
     def from_scene(scene: PanoScene, *, march_height: int = 256, min_grazing_deg: float = MIN_GRAZING_DEG,
@@ -117,6 +121,8 @@ class DepthSurface:
         dm = pano.resize_area(depth, Hm, Wm) if (Hm, Wm) != (H, W) else depth
         dm = torch.nan_to_num(dm, nan=0.0).clamp_min(1e-3)
         img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
+        scale = float(exposure_scale(img))
+        img = img * scale
         normal = pano.normals_from_depth(depth) if scene.normal is None else _unit0(scene.normal.float())
         sources = None
         if math.isfinite(bright_factor):
@@ -131,7 +137,7 @@ class DepthSurface:
             depth_tex=_pad(dm), jump_tex=_pad(jump), normal_tex=_pad(nm), mips=mips,
             r_bound=float(dm.max()) * 1.02 + 1e-3,
             jump_threshold=jump_threshold(Hm, min_grazing_deg),
-            sources=sources,
+            sources=sources, radiance_scale=scale,
         )
 
     @property
@@ -410,11 +416,11 @@ def project_probes(scene: PanoScene | DepthSurface, points: Tensor, probe_size: 
     if fallback is None:
         probes = vis * proj
     else:
-        fb = fallback.to(dev, torch.float32).reshape(N, 3, h, w)
+        fb = fallback.to(dev, torch.float32).reshape(N, 3, h, w) * surf.radiance_scale
         probes = vis * proj + (1 - vis) * fb
     if surf.sources is not None:
         probes = probes + _splat_sources(surf, pts, (h, w), steps, max_rays)
-    return probes, vis
+    return probes / surf.radiance_scale, vis
 
 
 def _splat_sources(surf: DepthSurface, pts: Tensor, probe_size: tuple[int, int], steps: int,

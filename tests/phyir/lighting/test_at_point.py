@@ -62,3 +62,15 @@ def test_probes_are_cached_by_position_and_drafts_snap_to_their_grid():
     d2 = lap.probe_at(torch.tensor([0.1 + 0.4 * DRAFT_STEP, -0.5, -1.0]), draft=True, grid=DRAFT_STEP)
     assert torch.equal(d1, d2) and len(lap._cache) == 2 and d1.shape == a.shape
     assert float((d1 - a).abs().sum() / a.sum()) < 0.05  # one ray per texel: close to full quality
+
+
+def test_extreme_radiance_is_projected_in_normalised_units():
+    # sums of 1e37 radiance over thousands of rays overflow float32 in the scene's own units
+    sc = room()
+    x = torch.tensor([[0.3, -0.4, -0.8]])
+    ref = light_at(sc, x, (16, 32))
+    for k in (1e-30, 2e38):  # values up to 1e38: four of them summed (mips) are inf
+        big = PanoScene(image=sc.image * k, depth=sc.depth, normal=sc.normal, probes=sc.probes * k)
+        p = light_at(big, x, (16, 32))
+        assert bool(torch.isfinite(p).all())
+        assert torch.allclose(p / k, ref, rtol=1e-4, atol=1e-6)
