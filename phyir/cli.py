@@ -22,7 +22,7 @@ from phyir import __version__
 from phyir.errors import PhyIRError
 
 # The library's subcommands, in display order; plug-ins (entry points) are placed by PLUGIN_ORDER.
-COMMANDS = ("info", "synth", "train", "predict", "eval", "bench")
+COMMANDS = ("info", "synth", "train", "predict", "eval", "export", "bench")
 PLUGIN_GROUP = "phyir.commands"
 PLUGIN_ORDER = {"insert": COMMANDS.index("bench")}  # listed before ``bench``
 

@@ -27,7 +27,7 @@ LAYERS = {
     "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,
     "phyir.learn": 3,
     "phyir.inference": 4,
-    "phyir.evaluation": 5, "phyir.insert": 5,
+    "phyir.evaluation": 5, "phyir.export": 5, "phyir.insert": 5,
     "phyir.bench": 6,
     "phyir.commands": 7, "phyir.cli": 7,
     "viewer": 8,

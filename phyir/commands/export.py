@@ -1,0 +1,145 @@
+"""``phyir export SCENE --gltf OUT.glb``: the room as a glTF mesh with materials, camera and lights,
+and the HDR panorama as ``OUT_env.exr`` beside it (docs/export.md)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+HELP = "export a scene as a glTF room (mesh, materials, camera, lights, objects) + its HDR panorama"
+
+
+class _Placement(argparse.Action):
+    """``--at`` and ``--position`` go into one list, in command-line order, paired with ``--object``."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        places = list(getattr(namespace, self.dest) or [])
+        places.append((option_string, values))
+        setattr(namespace, self.dest, places)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add = parser.add_argument
+    add("scene", metavar="SCENE",
+        help="scene file with depth (from phyir predict), or a panorama (the model predicts it first)")
+    add("--gltf", required=True, metavar="OUT.glb", help="binary glTF to write; OUT_env.exr goes beside it")
+    add("--exr", default=None, metavar="FILE.exr", help="the HDR panorama's file (default OUT_env.exr)")
+    add("--grid", default=None, metavar="HxW",
+        help="mesh resolution: cell rows x columns of the longitude/latitude grid (default 256x512, "
+             "or the panorama's size if smaller)")
+    add("--lights", type=int, default=16, metavar="N", help="at most N lights (default 16; 0: none)")
+    add("--fov", type=float, default=60.0, help="the glTF camera's vertical field of view, degrees")
+    add("--object", action="append", default=[], metavar="OBJ",
+        help="insert sphere, cube, cylinder or a mesh file (repeatable; each with one --at or --position)")
+    add("--at", dest="places", action=_Placement, metavar="U,V",
+        help="stand the object on the surface seen at pixel column U, row V")
+    add("--position", dest="places", action=_Placement, metavar="X,Y,Z",
+        help="put the object's centre at this world point (m)")
+    add("--scale", action="append", type=float, default=[], metavar="S",
+        help="object size factor (once for all objects, or once per object; default 1)")
+    add("--material", action="append", default=[], metavar="M",
+        help="diffuse, matte-silver, mirror-silver or B,B,B,R,M (once, or once per object)")
+    add("--weights", default=None, metavar="FILE",
+        help="model weights for a SCENE without depth (default: the shipped ones)")
+
+
+def parse_grid(text: str, size: tuple[int, int]) -> tuple[int, int]:
+    """``HxW`` vertex rows x columns, at least 2x4 and at most the panorama's size."""
+    from phyir.errors import InputError
+
+    try:
+        gh, gw = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError("--grid", f"expected ROWSxCOLUMNS, e.g. 256x512, got {text!r}") from None
+    H, W = size
+    if not (2 <= gh <= H and 4 <= gw <= W):
+        raise InputError("--grid", f"expected 2..{H} rows and 4..{W} columns (the panorama is {H}x{W}), "
+                                   f"got {text!r}")
+    return gh, gw
+
+
+def check_output(path: str, flag: str, ext: str) -> None:
+    from phyir.errors import InputError
+
+    if os.path.splitext(path)[1].lower() != ext:
+        raise InputError(flag, f"{path}: expected a {ext} file name")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise InputError(flag, f"{path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(flag, f"{path}: the folder {folder} is not writable")
+
+
+def _per_object(values: list, n: int, flag: str, default):
+    from phyir.errors import InputError
+
+    if len(values) not in (0, 1, n):
+        raise InputError(flag, f"give it once for all objects or once per --object ({n}), got {len(values)}")
+    return [values[0] if len(values) == 1 else (values[k] if values else default) for k in range(n)]
+
+
+def make_objects(args: argparse.Namespace, scene) -> list:
+    """The inserted objects, placed as ``phyir insert`` places them."""
+    from phyir.errors import InputError
+    from phyir.insert import views
+
+    places = args.places or []
+    n = len(args.object)
+    if len(places) != n:
+        raise InputError("--object", f"each --object needs one --at or --position: {n} objects, "
+                                     f"{len(places)} placements")
+    objects = []
+    scales = _per_object(args.scale, n, "--scale", 1.0)
+    materials = _per_object(args.material, n, "--material", "diffuse")
+    for spec, (flag, text), scale, material in zip(args.object, places, scales, materials):
+        obj = views.make_object(spec, scale, material)
+        values = _floats(text, 2 if flag == "--at" else 3, flag)
+        views.place_object(obj, scene, **({"at": values} if flag == "--at" else {"position": values}))
+        objects.append(obj)
+    return objects
+
+
+def _floats(text: str, n: int, flag: str) -> tuple[float, ...]:
+    import math
+
+    from phyir.errors import InputError
+
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise InputError(flag, f"expected {n} comma-separated finite numbers, got {text!r}")
+    return vals
+
+
+def run(args: argparse.Namespace) -> int:
+    from phyir.errors import InputError
+    from phyir.export.bundle import environment_path, export_gltf
+    from phyir.export.room_mesh import DEFAULT_GRID
+    from phyir.io import load_scene
+
+    exr = args.exr or environment_path(args.gltf)
+    check_output(args.gltf, "--gltf", ".glb")
+    check_output(exr, "--exr", ".exr")
+    if os.path.exists(args.scene) and os.path.exists(exr) and os.path.samefile(args.scene, exr):
+        raise InputError("--exr", f"{exr} is the input scene; choose another file name")
+    if not (0 <= args.lights <= 256):
+        raise InputError("--lights", f"expected 0..256, got {args.lights}")
+    if not (1.0 <= args.fov <= 170.0):
+        raise InputError("--fov", f"expected 1..170 degrees, got {args.fov:g}")
+    scene = load_scene(args.scene)
+    if scene.depth is None:
+        from phyir import predict
+
+        print(f"{args.scene}: no depth: predicting the layers with the model (phyir.predict)")
+        scene = predict(scene, weights=args.weights)
+    grid = (parse_grid(args.grid, scene.size) if args.grid is not None
+            else tuple(min(g, n) for g, n in zip(DEFAULT_GRID, scene.size)))
+    objects = make_objects(args, scene)
+    r = export_gltf(scene, args.gltf, exr_path=exr, grid=grid, objects=objects, max_lights=args.lights,
+                    fov_deg=args.fov)
+    print(f"wrote {r.glb} ({r.glb_bytes / 1e6:.1f} MB: {r.vertices} vertices, {r.faces} triangles, "
+          f"{r.dropped} dropped at depth edges, {r.lights} lights, {r.objects} objects) and {r.exr} "
+          f"({r.exr_bytes / 1e6:.1f} MB) in {r.seconds:.2f} s")
+    return 0
