@@ -3,6 +3,7 @@ interface calls; screenshots are checked pixel-wise."""
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -238,6 +239,24 @@ def test_a_file_that_fails_to_open_keeps_the_scene_that_was_open(app, tmp_path):
     after = app.screenshot()
     x, y, w, h = app.view_rect()
     assert np.abs(after[y : y + h, x : x + w].astype(int) - before[y : y + h, x : x + w]).mean() < 1
+
+
+def test_export_gltf_writes_the_room_and_the_inserted_objects(app, tmp_path):
+    import pygltflib
+
+    app.open(box_room(32, 64, variant="viewer"), name="room")
+    assert app.wait_idle(30) and app.error is None
+    app.objects.add("sphere")
+    app.objects.add("cube", at=(10.0, 24.0))
+    app.views["perspective"].fov = 75.0
+    report = app.export_gltf(tmp_path / "room.glb")
+    assert report.objects == 2 and (tmp_path / "room_env.exr").is_file()
+    doc = pygltflib.GLTF2().load(str(tmp_path / "room.glb"))
+    assert len([n for n in doc.nodes if n.name.startswith("object_")]) == 2
+    assert abs(doc.cameras[0].perspective.yfov - math.radians(75.0)) < 1e-6
+    assert any(m.text.startswith(f"exported {tmp_path / 'room.glb'}") for m in app.messages)
+    for i in range(len(app.objects.objects) - 1, -1, -1):
+        app.objects.delete(i)
 
 
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):

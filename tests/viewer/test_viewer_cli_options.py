@@ -52,7 +52,8 @@ def test_object_options_belong_to_the_object_before_them(capsys):
                             ObjectSpec("cube", position=(0.0, -1.0, -2.0), material="mirror-silver"),
                             ObjectSpec("chair.glb")]
     for bad, says in ((["--at", "1,2"], "--at needs an --object before it"),
-                      (["--object", "sphere", "--at", "1,2", "--position", "0,0,-1"], "one of --at or --position"),
+                      (["--object", "sphere", "--at", "1,2", "--position", "0,0,-1"],
+                       "one of --at or --position"),
                       (["--object", "sphere", "--scale", "nan"], "--scale"),
                       (["--object", "sphere", "--scale", "1e30"], "--scale"),
                       (["--object", "sphere", "--position", "0,inf,1"], "--position: expected 3 finite")):

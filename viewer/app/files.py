@@ -129,6 +129,23 @@ class FileActions:
             return
         self.note("info", f"saved {out}")
 
+    def export_gltf(self, path: str | os.PathLike | None = None):
+        """The room, its lights, the inserted objects and the perspective view's field of view as
+        glTF (``phyir.export``: PATH.glb + PATH_env.exr, default next to the file); a note says where."""
+        from phyir.errors import PhyIRError
+        from phyir.export.bundle import export_gltf
+
+        sc = self.objects.scene()
+        if sc is None or sc.depth is None:
+            raise PhyIRError("nothing to export: the scene has no depth yet")
+        if path is None:
+            path = f"{os.path.splitext(self.path or self.name)[0]}.glb"
+        report = export_gltf(sc, os.fspath(path), objects=[o for o in self.objects.objects if o.visible],
+                             fov_deg=float(self.views["perspective"].fov))
+        self.note("info", f"exported {report.glb} and {report.exr} ({report.lights} lights, "
+                          f"{report.objects} objects, {report.seconds:.1f} s)")
+        return report
+
     @gl_current
     def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:
         """Draw a frame of the current state and return it as uint8 RGB (rows from the top);

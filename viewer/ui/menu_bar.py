@@ -7,6 +7,7 @@ import os
 import shutil
 import sys
 
+from phyir.errors import PhyIRError
 from viewer.layers import KEYS, LAYERS
 from viewer.ui.widgets import imgui
 
@@ -32,6 +33,8 @@ class MenuBar:
             imgui.separator()
             if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
                 self._save_screenshot()
+            if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=app.scene is not None):
+                self._export_gltf()
             if imgui.menu_item_simple("Quit", "Ctrl+Q"):
                 self._quit()
             imgui.end_menu()
@@ -111,6 +114,12 @@ class MenuBar:
 
     def _save_screenshot(self) -> None:
         self.app.request_screenshot()
+
+    def _export_gltf(self) -> None:
+        try:
+            self.app.export_gltf()
+        except (PhyIRError, OSError) as e:  # a scene without depth, a read-only folder: say so, keep running
+            self.app.note("error", f"export: {e}")
 
     def _quit(self) -> None:
         self.quit_requested = True
