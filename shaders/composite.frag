@@ -187,6 +187,7 @@ void main() {
             vec3 dS = vec3(0.0);
             vec3 dE = vec3(0.0);
             vec3 e_pl = vec3(0.0);
+            float e_lights = 0.0;  // the brightest unshadowed light's irradiance (luminance)
             bool near_any = false;
             for (int k = 0; k < n_objects; ++k) {
                 float dc = length(x - obj_sphere[k].xyz);
@@ -265,22 +266,23 @@ void main() {
                 if (c.w <= 1e-6 || any(greaterThan(abs(c.xy / c.w), vec2(1.0)))) continue;
                 float fall = light_dist[j] * light_dist[j] / max(dl * dl, 1e-6);
                 vec3 e = light_power[j] * min(fall, 16.0) * cos_l;
+                e_lights = max(e_lights, dot(e, vec3(0.2126, 0.7152, 0.0722)));
                 e_pl = max(e_pl, PI * ambient_full(k, n));
                 dE -= e * (1.0 - light_visibility(j, x));
                 near_any = true;
             }
             if (near_any) {
-                vec3 albedo;
-                if (has_albedo != 0) {
-                    albedo = base * (1.0 - rm.g);
-                } else {  // the albedo the background implies under the object-free lighting
-                    albedo = clamp(PI * bg / max(e_pl, vec3(1e-6)), 0.0, 1.0);
-                    dS = vec3(0.0);
-                }
-                vec3 shadowed = max(bg + albedo * dE / PI + dS, vec3(0.0));
-                float lum_pl = dot(e_pl, vec3(0.2126, 0.7152, 0.0722));
+                // The photo already holds albedo x irradiance: the receiver keeps the share of its
+                // irradiance the objects leave (bg x (E + dE) / E).  The additive form of D.2,
+                // bg + albedo dE / pi with the predicted albedo and lighting, went negative (a black,
+                // coloured halo) wherever those over-estimated what the photo shows.
+                vec3 e_ref = max(e_pl, vec3(e_lights));
+                vec3 keep_share = max(vec3(1.0) + dE / max(e_ref, vec3(1e-6)), vec3(0.0));
+                if (has_albedo == 0) dS = vec3(0.0);
+                vec3 shadowed = max(bg * keep_share + dS, vec3(0.0));
+                float lum_pl = dot(e_ref, vec3(0.2126, 0.7152, 0.0722));
                 matte = clamp(-dot(dE, vec3(0.2126, 0.7152, 0.0722)) / max(lum_pl, 1e-6), 0.0, 1.0);
-                de_pi = dot(albedo * dE / PI + dS, vec3(0.2126, 0.7152, 0.0722));
+                de_pi = dot(shadowed - bg, vec3(0.2126, 0.7152, 0.0722));
                 result.rgb = shadowed;
             }
         }

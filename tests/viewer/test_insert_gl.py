@@ -7,6 +7,7 @@ spheres of the supplement's Table 2.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -139,6 +140,30 @@ def test_insertion_changes_only_object_and_shadow(renderer, room):
     far = (alpha == 0) & (out["shadow_delta"] == 0)
     assert far.mean() > 0.5
     assert np.array_equal(comp[far], bg[far])
+
+
+def test_shadows_keep_a_share_of_the_photo_whatever_the_predicted_albedo(renderer, room):
+    """The receiver keeps the share of its irradiance the object leaves: bg x (E + dE) / E.  With a
+    predicted albedo far brighter than the photo implies (white, in a room photographed 5x darker)
+    the additive D.2 form bg + albedo dE / pi went below zero: a black ring, coloured where the
+    channels clipped at different places."""
+    dark = copy.copy(room)
+    dark.image = room.image * 0.2
+    dark.albedo = torch.ones_like(room.albedo)
+    renderer.set_scene(dark)
+    try:
+        obj = _sphere(dark, 40.5, 50.5, 0.25)
+        out = renderer.render_view([obj], *_equirect(dark), DRAGGING)
+    finally:
+        renderer.set_scene(room)
+    bg = dark.image.permute(1, 2, 0).numpy()
+    ring = (out["alpha"] == 0) & (out["shadow_delta"] < 0) & (bg.min(-1) > 1e-4)
+    assert ring.sum() > 20
+    share = out["composite"][ring] / bg[ring]
+    assert share.max() <= 1 + 1e-4
+    assert share.min() > 0.25  # no black halo (the additive form: 0 at 2% of these pixels)
+    # white light: every channel keeps the same share, no tinted ring (additive: channels 0.1 apart)
+    assert np.abs(share - share.mean(-1, keepdims=True)).max() < 0.03
 
 
 def test_scene_geometry_hides_objects_behind_it(renderer, room):
