@@ -56,9 +56,10 @@ case "$mode" in
   --demo)
     shift || true
     if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
-      log "no display: rendering the demo scene headlessly (EGL) to phyir-demo.png instead"
+      out="${PHYIR_DEMO_PNG:-${TMPDIR:-/tmp}/phyir-demo.png}"  # not into the checkout
+      log "no display: rendering the demo scene headlessly (EGL) to $out instead"
       log "(interactive use needs a display; see docs/viewer.md for --headless/--screenshot)"
-      exec "$bindir/phyir-view" --headless --screenshot phyir-demo.png "$@"
+      exec "$bindir/phyir-view" --headless --screenshot "$out" "$@"
     fi
     exec "$bindir/phyir-view" "$@"
     ;;
