@@ -9,17 +9,21 @@ Command modules import heavy dependencies inside ``run`` so ``phyir --help`` sta
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import importlib.metadata
 import importlib.util
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 
 # Idle OpenMP threads sleep instead of spinning (set before torch loads; matters on busy small CPUs).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from phyir import __version__
-from phyir.errors import PhyIRError
+from phyir.errors import InputError, PhyIRError, os_error, shown
 
 # The library's subcommands, in display order; plug-ins (entry points) are placed by PLUGIN_ORDER.
 COMMANDS = ("info", "synth", "train", "predict", "eval", "export", "bench")
@@ -38,8 +42,55 @@ def command_modules() -> dict[str, str]:
     return {name: mods[name] for name in order}
 
 
+class Terminated(KeyboardInterrupt):
+    """[issue 22, class 4] SIGTERM, raised like Ctrl-C's KeyboardInterrupt so the same cleanup
+    (atomic writes removing their temporaries, training's checkpoint) runs; ``phyir`` exits 143."""
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """While the block runs (in the main thread), SIGTERM raises :class:`Terminated`; a process
+    forked inside it (a DataLoader worker) keeps the default: it just ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    owner = os.getpid()
+
+    def handler(signum, _frame):
+        if os.getpid() != owner:
+            signal.signal(signum, signal.SIG_DFL)
+            signal.raise_signal(signum)
+        raise Terminated()
+
+    saved = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if saved is None else saved)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """[issue 22, class 7] A bad option is one line (``phyir insert: error: argument --fov: ...``),
+    not argparse's usage block and then the error; exit 2 as before.  Subparsers inherit it."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def _get_value(self, action, arg_string):
+        """[issue 22, class 9] A PhyIRError raised by an option's type function is the message
+        ("argument --size: expected ..."), not argparse's "invalid _size value"."""
+        try:
+            return super()._get_value(action, arg_string)
+        except argparse.ArgumentError as e:
+            cause = e.__context__
+            if not isinstance(cause, PhyIRError):
+                raise
+            named = isinstance(cause, InputError) and cause.path in action.option_strings
+            raise argparse.ArgumentError(action, cause.problem if named else str(cause)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="phyir",
         description="Physics-based inverse rendering of indoor 360° panoramas (PhyIR).",
     )
@@ -73,16 +124,26 @@ def check_requirements(command: str, requires: tuple[str, str, tuple[str, ...]] 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a refused option (its one line is printed)
+        return e.code if isinstance(e.code, int) else 2
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
     try:
-        check_requirements(args.command, args._requires)
-        return int(args._run(args) or 0)
+        with sigterm_raises():
+            check_requirements(args.command, args._requires)
+            return int(args._run(args) or 0)
     except PhyIRError as e:
-        print(f"phyir {args.command}: error: {e}", file=sys.stderr)
+        print(f"phyir {args.command}: error: {shown(str(e))}", file=sys.stderr)
         return 2
+    except OSError as e:  # the file system's refusals (read-only, full, no permission): one line
+        print(f"phyir {args.command}: error: {shown(str(os_error(None, e)))}", file=sys.stderr)
+        return 2
+    except Terminated:
+        print(f"phyir {args.command}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"phyir {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -55,9 +55,9 @@ MAX_PREDICT_SIZE = (4096, 8192)
 MAX_AWAY_SHARE = 0.05
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 # the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
-# 32, W = 2H, at most this; the lite model peaks at ~PEAK_MB_PER_NET_MPX MB per net megapixel
-# (docs/robustness.md), so 1024x2048 stays near 2 GB while 4096x8192 needed 4.6 GB and failed
-MAX_NET_SIZE = (1024, 2048)
+# 32, W = 2H, at most this.  Peak memory of predict on an input of the net's size (lite model, CPU,
+# docs/robustness.md): 787 MB at 512x1024, 1785 MB at 1024x2048; 4096x8192 took 4.6 GB and failed
+MAX_NET_SIZE = (512, 1024)
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
 

@@ -278,7 +278,7 @@ class Worker:
 # re-render; numpy.ma, which np.percentile in layers.auto_range imports at its first call).
 JOB_MODULES = ("numpy.ma", "phyir.io", "phyir.io.exr", "phyir.io.ldr", "phyir.io.rgbe", "phyir.inference",
                "phyir.learn.weights", "phyir.nets.model", "phyir.learn.datasets", "safetensors",
-               "safetensors.torch",
+               "safetensors.torch", "phyir.io.files", "torch.utils._device",  # (weights: meta device)
                "phyir.shading.render")
 
 

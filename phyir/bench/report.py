@@ -210,13 +210,12 @@ def format_markdown(report: dict) -> str:
 
 def write_report(out_dir: str | os.PathLike, report: dict) -> tuple[Path, Path]:
     """Write ``report.json`` (strict JSON) and ``report.md``; returns their paths."""
-    from phyir.io import atomic_write
+    from phyir.io import atomic_files
 
     out = Path(out_dir)
     js, md = out / "report.json", out / "report.md"
     report.setdefault("merged_from_earlier", merge_previous(out, report))
-    with atomic_write(js) as tmp:
-        Path(tmp).write_text(json.dumps(report, indent=1, allow_nan=False))
-    with atomic_write(md) as tmp:
-        Path(tmp).write_text(format_markdown(report))
+    with atomic_files([js, md]) as (js_tmp, md_tmp):  # one set: the JSON and its Markdown agree
+        Path(js_tmp).write_text(json.dumps(report, indent=1, allow_nan=False))
+        Path(md_tmp).write_text(format_markdown(report))
     return js, md

@@ -15,6 +15,8 @@ import importlib
 import importlib.metadata
 import importlib.util
 
+from phyir.commands import options
+
 HELP = ("benchmark PhyIR: time and error of every stage; per target JSON + PNG, and report.md/.json "
         "(targets: modules, skips, render, synth, model, shading)")
 
@@ -48,9 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"what to benchmark: {', '.join(TARGETS)} (default: all available)")
     parser.add_argument("--quick", action="store_true", help="small sizes and few repeats (smoke test)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    parser.add_argument("--repeats", type=int, default=None, metavar="N",
+    parser.add_argument("--repeats", type=options.number(1, 10**4, integer=True), default=None, metavar="N",
                         help="timed runs per measurement after one warm-up (default: per target)")
-    parser.add_argument("--threads", type=int, default=None, metavar="N",
+    parser.add_argument("--threads", type=options.number(1, 1024, integer=True), default=None, metavar="N",
                         help="torch CPU threads during the run (default: torch's; 1 = fair CPU times "
                              "on a shared machine)")
     parser.add_argument("-o", "--out", default="benchmarks/results", metavar="DIR",

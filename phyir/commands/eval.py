@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from phyir.commands import options
+
 HELP = "evaluate predictions (or the model on a synthetic split) with the paper's metrics"
 
 # column groups of the Markdown tables
@@ -24,13 +26,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
     parser.add_argument("--weights", metavar="FILE", help="weights for --data (default: the shipped model)")
     parser.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
-    parser.add_argument("--limit", type=int, help="evaluate the first N scenes only")
-    parser.add_argument("--probes-per-scene", type=int, default=256,
+    parser.add_argument("--limit", type=options.number(1, 10**9, integer=True),
+                        help="evaluate the first N scenes only")
+    parser.add_argument("--probes-per-scene", type=options.number(1, 10**6, integer=True), default=256,
                         help="random ground-truth probe cells compared per scene (--data)")
-    parser.add_argument("--relight", type=int, default=16,
+    parser.add_argument("--relight", type=options.number(0, 10**4, integer=True), default=16,
                         help="probes per scene rendered for the relighting error (0: skip)")
-    parser.add_argument("--spp", type=int, default=64, help="samples per pixel of the relit spheres")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--spp", type=options.number(1, 65536, integer=True), default=64,
+                        help="samples per pixel of the relit spheres")
+    parser.add_argument("--seed", type=options.number(0, 2**63 - 1, integer=True), default=0)
     parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
     parser.add_argument("--markdown", metavar="FILE", help="write the Markdown tables (also printed)")
     parser.add_argument("--real", metavar="DIR",
@@ -80,11 +84,12 @@ def margin_table(name: str, r: dict[str, float]) -> str:
 
 def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:
     from phyir.errors import InputError
+    from phyir.io import folder_files
 
     files: list[Path] = []
     for s in preds:
         p = Path(s)
-        files += sorted(q for q in p.glob("*.exr")) if p.is_dir() else [p]
+        files += [Path(q) for q in folder_files(p, (".exr",))] if p.is_dir() else [p]  # no temporaries
     if not files:
         raise InputError(preds[0] if preds else None, "no prediction files")
     pairs = []
@@ -134,15 +139,14 @@ def write_outputs(args: argparse.Namespace, results: dict, md: str) -> None:
     """Print the Markdown; write --json and --markdown (atomically) when asked."""
     import json
 
-    from phyir.io import atomic_write
+    from phyir.io import AtomicSet
 
     print(md)
-    if args.json:
-        with atomic_write(args.json) as tmp:
-            Path(tmp).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
-    if args.markdown:
-        with atomic_write(args.markdown) as tmp:
-            Path(tmp).write_text(md)
+    with AtomicSet() as files:  # one set: never a new JSON beside an old Markdown
+        if args.json:
+            Path(files.add(args.json)).write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+        if args.markdown:
+            Path(files.add(args.markdown)).write_text(md)
 
 
 def run_real(args: argparse.Namespace) -> int:

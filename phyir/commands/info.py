@@ -14,14 +14,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from phyir.errors import PhyIRError
+    from phyir.errors import PhyIRError, shown
 
     status = 0
     for i, path in enumerate(args.files):
         try:
             text = describe(path)
         except PhyIRError as e:  # report and go on with the other files
-            print(f"phyir info: error: {e}", file=sys.stderr)
+            print(f"phyir info: error: {shown(str(e))}", file=sys.stderr)
             status = 2
             continue
         print(("\n" if i else "") + text, flush=True)
@@ -33,10 +33,10 @@ def describe(path: str) -> str:
     import numpy as np
 
     from phyir import io
-    from phyir.errors import InputError
+    from phyir.errors import InputError, shown
 
     raw = io.read_raw(path, panorama=False)
-    lines = [f"{path}: {raw.format} ({raw.detail})"]
+    lines = [f"{shown(path)}: {raw.format} ({raw.detail})"]
     for part in raw.parts:
         types = "/".join(sorted(set(part.pixel_types.values())))
         head = f"  part {part.name!r}: {part.height}x{part.width} (HxW), {types}"

@@ -34,30 +34,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def collect_inputs(inputs: list[str]) -> list[Path]:
     """Files as given; folders expanded to their image files (sorted, not recursive)."""
     from phyir.errors import InputError
+    from phyir.io import check_input, folder_files
 
     files: list[Path] = []
     for s in inputs:
         p = Path(s)
-        if p.is_dir():
-            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+        if p.is_dir():  # hidden files (a write's temporaries among them) are not inputs
+            found = [Path(q) for q in folder_files(p, IMAGE_SUFFIXES)]
             if not found:
                 raise InputError(p, "folder holds no .exr/.hdr/.png/.jpg files")
             files += found
-        elif p.exists():
-            files.append(p)
         else:
-            raise InputError(p, "no such file or folder")
+            check_input(p)  # a regular file: FIFOs, devices, symlink loops refused here, in one line
+            files.append(p)
     return files
 
 
 def output_paths(files: list[Path], output: str) -> list[Path]:
-    from phyir.errors import PhyIRError
+    from phyir.errors import PhyIRError, shown
+    from phyir.io import check_output
 
     out = Path(output)
     if out.suffix.lower() == ".exr" and not out.is_dir():
+        check_output(out)  # not a device, FIFO, ...
         if len(files) != 1:
             raise PhyIRError(f"{out}: {len(files)} inputs need an output folder, not a .exr file")
         return [out]
+    if out.exists() and not out.is_dir():
+        raise PhyIRError(f"{shown(out)}: exists and is not a folder: the output is a .exr file (one "
+                         "input) or a folder")
     names = [f.stem + ".exr" for f in files]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -82,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from phyir.errors import PhyIRError
+    from phyir.errors import PhyIRError, shown
     from phyir.inference import OUTPUTS, predict_with_report
     from phyir.io import save_scene
 
@@ -96,11 +101,10 @@ def run(args: argparse.Namespace) -> int:
             raise PhyIRError(f"--outputs: unknown {', '.join(bad)} (choose from {', '.join(OUTPUTS)})")
     net_size = None
     if args.net_size:
+        from phyir.inference import check_net_size
         from phyir.synth.dataset import parse_size
 
-        net_size = parse_size(args.net_size, "--net-size")
-        if net_size[0] % 32 or net_size[1] != 2 * net_size[0]:
-            raise PhyIRError(f"--net-size: need H a multiple of 32 and W = 2H, got {args.net_size}")
+        net_size = check_net_size(parse_size(args.net_size, "--net-size"), "--net-size")
     device = torch.device(args.device) if args.device else \
         torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if device.type == "cuda" and not torch.cuda.is_available():
@@ -120,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             dst.parent.mkdir(parents=True, exist_ok=True)
             save_scene(scene, dst, half=args.half)
         except PhyIRError as e:  # report and go on with the other inputs
-            bar.write(f"phyir predict: error: {e}", file=sys.stderr)
+            bar.write(f"phyir predict: error: {shown(str(e))}", file=sys.stderr)
             status = 2
             bar.update(1)
             continue
@@ -136,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
             if report.normals_from == "depth":
                 note += f"; normals from depth: the network's face away from the camera in " \
                         f"{100 * report.normals_away:.0f}% of the view"
-            bar.write(f"{src} -> {dst} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
+            bar.write(f"{shown(src)} -> {shown(dst)} ({H}x{W}, {secs['total']:.2f} s: {parts}; "
                       f"computed: {' '.join(report.computed) or 'nothing'}{note}){confidence}")
         bar.update(1)
     bar.close()

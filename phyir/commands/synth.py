@@ -4,19 +4,22 @@ from __future__ import annotations
 
 import argparse
 
+from phyir.commands import options
+
 HELP = "generate synthetic indoor panoramas with ground-truth layers and light probes"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder (created; resumable)")
-    parser.add_argument("--count", type=int, required=True, metavar="N",
+    parser.add_argument("--count", type=options.number(1, 10**12, integer=True), required=True, metavar="N",
                         help="number of scenes in the dataset")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="dataset seed (default 0)")
+    parser.add_argument("--seed", type=options.number(0, 2**63 - 1, integer=True), default=0, metavar="S",
+                        help="dataset seed (default 0)")
     parser.add_argument("--size", default="256x512", metavar="HxW", help="panorama size (default 256x512)")
     parser.add_argument("--probe-grid", default="64x128", metavar="HpxWp",
                         help="probe grid, dividing the size; 'none' for no probes (default 64x128)")
     parser.add_argument("--probe-size", default="16x32", metavar="hxw", help="probe size (default 16x32)")
-    parser.add_argument("--spp", type=int, default=16, metavar="N",
+    parser.add_argument("--spp", type=options.number(1, 10**12, integer=True), default=16, metavar="N",
                         help="camera samples per pixel (default 16)")
     parser.add_argument("--shard", default="0/1", metavar="i/n",
                         help="render only scenes with index %% n == i (default 0/1: all)")

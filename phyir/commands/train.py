@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from phyir.commands import options as types
+
 HELP = "train GMNet / LNet / GSNet in the stages of the paper (resumable, multi-GPU via torchrun)"
 
 
@@ -26,26 +28,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("lite", "full"), help="architecture for a fresh start (default lite)")
     p.add_argument("--init", help="weights to start from (default: the previous stage's export; "
                                   "'scratch' for random)")
-    p.add_argument("--epochs", type=int, help="override the stage's epoch count")
-    p.add_argument("--lr", type=float, help="override the stage's learning rate")
-    p.add_argument("--batch-size", type=int, help="override the stage's global batch size")
+    p.add_argument("--epochs", type=types.integer, help="override the stage's epoch count")
+    p.add_argument("--lr", type=types.finite, help="override the stage's learning rate")
+    p.add_argument("--batch-size", type=types.integer, help="override the stage's global batch size")
     p.add_argument("--size", type=_size, help="training resolution HxW (default 128x256; 'native')")
     p.add_argument("--probe-grid", type=_size, help="merge ground-truth probes to this HpxWp grid "
                                                     "(default 16x32; 'native' keeps the files' grid)")
     p.add_argument("--schedule", choices=("constant", "cosine"))
-    p.add_argument("--seed", type=int)
-    p.add_argument("--workers", type=int, help="data-loading worker processes per training process")
+    p.add_argument("--seed", type=types.integer)
+    p.add_argument("--workers", type=types.integer,
+                   help="data-loading worker processes per training process")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"))
     p.add_argument("--no-amp", dest="amp", action="store_const", const=False, help="disable mixed precision")
     p.add_argument("--no-augment", dest="augment", action="store_const", const=False)
     p.add_argument("--no-val", dest="val", action="store_const", const=False)
-    p.add_argument("--max-minutes", type=float, help="stop with a checkpoint after this many minutes")
-    p.add_argument("--max-steps", type=int, help="stop with a checkpoint at this global step")
-    p.add_argument("--ckpt-every", type=int, help="checkpoint every N steps (default 200)")
+    p.add_argument("--max-minutes", type=types.finite,
+                   help="stop with a checkpoint after this many minutes")
+    p.add_argument("--max-steps", type=types.integer, help="stop with a checkpoint at this global step")
+    p.add_argument("--ckpt-every", type=types.integer, help="checkpoint every N steps (default 200)")
     p.add_argument("--no-cache", dest="cache", action="store_const", const=False,
                    help="don't keep resampled scenes in <out>/cache/")
-    p.add_argument("--limit-train", type=int, help="use only the first N training scenes")
-    p.add_argument("--limit-val", type=int, help="use only the first N validation scenes")
+    p.add_argument("--limit-train", type=types.integer, help="use only the first N training scenes")
+    p.add_argument("--limit-val", type=types.integer, help="use only the first N validation scenes")
     p.add_argument("--no-progress", dest="progress", action="store_const", const=False)
     p.add_argument("--train-only", action="append", metavar="PREFIX",
                    help="train only parameters under this name (repeatable; e.g. gmnet.decoders.metallic)")

@@ -224,8 +224,11 @@ def _prefix(p: str, d: dict[str, float]) -> dict[str, float]:
 
 
 def panorama_files(folder: str | os.PathLike) -> list[Path]:
-    """The panoramas of ``folder`` (:data:`EXTENSIONS`), sorted by name."""
-    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in EXTENSIONS)
+    """The panoramas of ``folder`` (:data:`EXTENSIONS`), sorted by name; hidden files (our writes'
+    temporaries among them) are not panoramas."""
+    from phyir.io import folder_files
+
+    return [Path(p) for p in folder_files(folder, tuple(EXTENSIONS))]
 
 
 def evaluate_panorama(path: str | os.PathLike, *, methods: dict[str, RL.LightMethod] | None = None,

@@ -237,15 +237,18 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     """Read a mesh file (every part of a scene file merged into one mesh); see the module doc."""
     import trimesh
 
+    from phyir.io import check_input
+
     p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputError(p, "no such file")
+    check_input(p, "mesh file")  # a FIFO, a device, a folder, a symlink loop: said as such
     declared = declared_faces(p)
     if declared is not None and declared > MAX_FACES:  # refused before parsing (nothing allocated)
         raise InputError(p, f"{declared:,} triangles (declared in the file's header) is more than the "
                             f"limit of {MAX_FACES:,}; decimate the mesh first")
     try:
-        loaded = trimesh.load(p, force="mesh", process=False)
+        # textures and materials are never used (the object's material is --material): not decoded,
+        # so a small GLB with a 12000^2 embedded image costs nothing
+        loaded = trimesh.load(p, force="mesh", process=False, skip_materials=True)
     except Exception as e:  # trimesh raises many types for bad files
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise InputError(p, f"cannot read the mesh: {msg}") from None
@@ -296,7 +299,7 @@ def object_mesh(spec: str) -> Mesh:
     """``sphere|cube|cylinder`` or a mesh file path."""
     if spec in PRIMITIVES:
         return primitive(spec)
-    if os.path.splitext(spec)[1].lower() not in MESH_SUFFIXES and not os.path.exists(spec):
+    if os.path.splitext(spec)[1].lower() not in MESH_SUFFIXES and not os.path.lexists(spec):
         raise InputError("--object", f"expected {', '.join(PRIMITIVES)} or a mesh file "
                                      f"({', '.join(MESH_SUFFIXES)}), got {spec!r}")
     return load_mesh(spec)

@@ -197,3 +197,48 @@ def place_at_position(scene: PanoScene, centre: np.ndarray, centre_offset: np.nd
     i, j = min(int(v), H - 1), int(u) % W
     free = float(np.linalg.norm(c)) < float(scene.depth[0, i, j]) if scene.depth is not None else True
     return Placement(c - rot @ np.asarray(centre_offset, dtype=np.float64), rot, contact, normal), free
+
+
+# ---------------------------------------------------------------------------------------------
+# sanity of a render: what the camera sees of the objects (issue 22, class 5)
+
+COVERED_ALPHA = 0.5  # coverage above which a pixel counts as the object's
+# objects are drawn as impostors seen from outside their bounding sphere: within CAMERA_CLEARANCE x
+# its radius the renderer (viewer/gl/impostors.py) cannot draw them at all
+CAMERA_CLEARANCE = 1.02
+
+
+def camera_inside(objects, camera=(0.0, 0.0, 0.0)) -> str | None:
+    """A one-line problem when the ``camera`` point (world, metres; the panorama's centre by default,
+    the perspective view's too) lies within :data:`CAMERA_CLEARANCE` x the bounding sphere of a
+    visible object (the render would show nothing of it), else None.  ``objects``:
+    :class:`phyir.insert.objects.SceneObject` values (anything with ``bounding_sphere()``,
+    ``visible`` and ``name``)."""
+    cam = np.asarray(camera, dtype=np.float64)
+    for obj in objects:
+        if not getattr(obj, "visible", True):
+            continue
+        centre, radius = obj.bounding_sphere()
+        dist = float(np.linalg.norm(cam - centre))
+        if dist <= radius * CAMERA_CLEARANCE:
+            return (f"the camera is inside the object {obj.name!r} (within its bounding sphere: centre "
+                    f"{dist:.3g} m away, radius {radius:.3g} m), which can't be drawn: move it away or "
+                    "make it smaller")
+    return None
+
+
+def coverage_problem(alpha: np.ndarray) -> str | None:
+    """A one-line warning when a rendered view's object coverage ``alpha [h, w]`` is empty (the
+    objects are hidden behind the scene, outside the view, beyond the far plane or smaller than a
+    pixel) or fills every pixel (the view shows nothing but the object), else None."""
+    a = np.asarray(alpha)
+    covered = a > COVERED_ALPHA
+    if not np.isfinite(a).all():
+        return "the object coverage of the render is not finite (NaN): the placement is broken"
+    if not (a > 0).any():
+        return ("no object is visible in the render (hidden behind the scene's surfaces, outside the "
+                "view, too far or smaller than a pixel)")
+    if covered.all():
+        return ("an object covers the whole view (is the camera inside it, or is it far too large — "
+                "a mesh modelled in centimetres?)")
+    return None

@@ -20,6 +20,7 @@ Nothing here imports GL, the viewer or its UI libraries.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -29,15 +30,24 @@ import numpy as np
 import torch
 
 from phyir import color, pano
-from phyir.errors import InputError, PhyIRError
+from phyir.errors import InputError, PhyIRError, shown
 from phyir.insert import placement
-from phyir.insert.objects import SceneObject, object_mesh, parse_material
+from phyir.insert.objects import PRIMITIVES, SceneObject, object_mesh, parse_material
 from phyir.scene import PanoScene
 
 MIN_FOV, MAX_FOV = 10.0, 150.0        # perspective field of view limits, degrees
 MIN_ZOOM, MAX_ZOOM = 1 / 64, 256.0    # equirect zoom limits, screen px per panorama px
 MAX_PITCH = math.radians(89.0)
 GIF_WIDTH = 512
+PRIMITIVE_SCALE = 0.25                # default primitive size: radius / half-extent 25 cm
+MIN_SCALE, MAX_SCALE = 1e-3, 100.0    # --scale: a 1 mm .. 100 m radius primitive
+MAX_DISTANCE = 1000.0                 # m: an object placed farther is not in an indoor scene
+# a render takes ~150 bytes per output pixel (three RGBA float32 targets, their read-back, the
+# passes) over ~400 MB: peak 706 MB at 2048x1024, 1.0 GB at 2048x2048, 1.6 GB at 4096x2048
+# (`phyir insert --view perspective --size ...`, llvmpipe).  Renders are refused beyond this many
+# pixels, or the panorama's own when it has more (its equirect view at full resolution)
+MAX_RENDER_PIXELS = 2048 * 2048
+MAX_RENDER_SIDE = 8192                # and never more per side than GL's renderbuffer limit
 LUMA = np.array(color.LUMA, np.float32)  # phyir.color.LUMA, for numpy images [..., 3]
 
 
@@ -211,16 +221,26 @@ def load_insert_scene(path: str, *, weights: str | None = None, log=print) -> Pa
     if scene.depth is not None and scene.probes is not None:
         return scene
     missing = [n for n in ("depth", "probes") if getattr(scene, n) is None]
-    log(f"{path}: no {' or '.join(missing)}: predicting the layers with the model (phyir.predict)")
+    log(f"{shown(path)}: no {' or '.join(missing)}: predicting the layers with the model (phyir.predict)")
     from phyir import predict
 
-    return predict(scene, weights=weights)
+    try:
+        return predict(scene, weights=weights)
+    except InputError as e:  # [issue 22, class 9] the scene's own problem (e.g. too small): name its file
+        if e.path is not None:
+            raise
+        raise InputError(path, e.problem) from None
 
 
-def make_object(spec: str, scale: float, material: str) -> SceneObject:
-    if not (math.isfinite(scale) and scale > 0):
-        raise InputError("--scale", f"expected a positive number, got {scale!r}")
-    return SceneObject(object_mesh(spec), parse_material(material), scale=scale)
+def make_object(spec: str, scale: float | None, material: str) -> SceneObject:
+    """The object ``--object``/``--scale``/``--material`` describe; ``scale`` None: primitives get
+    :data:`PRIMITIVE_SCALE` (a 25 cm radius / half-extent), meshes keep their own units (1)."""
+    mesh = object_mesh(spec)
+    if scale is None:
+        scale = PRIMITIVE_SCALE if spec in PRIMITIVES else 1.0
+    if not (math.isfinite(scale) and MIN_SCALE <= scale <= MAX_SCALE):
+        raise InputError("--scale", f"expected a number in {MIN_SCALE:g}..{MAX_SCALE:g}, got {scale!r}")
+    return SceneObject(mesh, parse_material(material), scale=scale)
 
 
 def place_object(obj: SceneObject, scene: PanoScene, *, at: tuple[float, float] | None = None,
@@ -233,6 +253,15 @@ def place_object(obj: SceneObject, scene: PanoScene, *, at: tuple[float, float] 
         if not (0 <= u < W and 0 <= v < H):
             raise InputError("--at", f"pixel ({u:g}, {v:g}) is outside the {W}x{H} panorama")
         pl = placement.drop(scene, u + 0.5, v + 0.5, obj.base_offset(), normal=normal)
+        # the footprint's centre (not the local origin, which a mesh may have far from its
+        # geometry) stands on the point: shift by the bounding centre's local x, z
+        c = obj.mesh.bounding_sphere()[0] * obj.scale
+        pl.position = pl.position - pl.rotation @ np.array([c[0], 0.0, c[2]])
+        far = float(np.linalg.norm(pl.contact))
+        if not far <= MAX_DISTANCE:  # e.g. a depth layer that is not in metres (1e30 everywhere)
+            raise InputError("--at", f"the surface at pixel ({u:g}, {v:g}) is {far:.3g} m from the camera "
+                                     f"(more than {MAX_DISTANCE:g} m): the scene's depth is not an "
+                                     "indoor room in metres")
     elif position is not None:
         centre_local = obj.rotation @ (obj.mesh.bounding_sphere()[0] * obj.scale)
         pl, free = placement.place_at_position(scene, np.asarray(position, np.float64), centre_local,
@@ -245,10 +274,16 @@ def place_object(obj: SceneObject, scene: PanoScene, *, at: tuple[float, float] 
     obj.position, obj.rotation, obj.support = pl.position, pl.rotation, (pl.contact, pl.normal)
 
 
-def path_points(waypoints: list[tuple[float, float]], frames: int, W: int) -> list[tuple[float, float]]:
-    """``frames`` pixel positions evenly spaced along a polyline (shortest way round the seam)."""
+def path_points(waypoints: list[tuple[float, float]], frames: int, W: int,
+                H: int | None = None) -> list[tuple[float, float]]:
+    """``frames`` pixel positions (as ``--at`` takes them: column in [0, W), row in [0, H)) evenly
+    spaced along a polyline, the shortest way round the seam; waypoints outside the panorama
+    (``H`` given) are refused as ``--path``."""
     if len(waypoints) < 2 or frames < 2:
         raise InputError("--path", "expected at least two points U1,V1:U2,V2 and --frames >= 2")
+    for u, v in waypoints:
+        if not (0 <= u < W and (H is None or 0 <= v < H)):
+            raise InputError("--path", f"point ({u:g}, {v:g}) is outside the {W}x{H or '?'} panorama")
     segs = []
     for (u0, v0), (u1, v1) in zip(waypoints, waypoints[1:]):
         du = (u1 - u0 + W / 2) % W - W / 2
@@ -260,7 +295,8 @@ def path_points(waypoints: list[tuple[float, float]], frames: int, W: int) -> li
         for u0, v0, du, dv, length in segs:
             if s <= length or (u0, v0, du, dv, length) == segs[-1]:
                 t = min(s / length, 1.0) if length > 0 else 0.0
-                out.append(((u0 + t * du) % W, v0 + t * dv))
+                u = (u0 + t * du) % W
+                out.append((u if u < W else 0.0, v0 + t * dv))  # (-1e-20 % W is W)
                 break
             s -= length
     return out
@@ -282,6 +318,11 @@ class ViewSpec:
             return EquirectView(center=(W / 2, H / 2), zoom=size[0] / W), size
         if self.kind != "perspective":
             raise InputError("--view", f"expected equirect or perspective, got {self.kind!r}")
+        if not MIN_FOV <= self.fov <= MAX_FOV:  # (also False for NaN)
+            raise InputError("--fov", f"expected {MIN_FOV:g}..{MAX_FOV:g} degrees, got {self.fov!r}")
+        for name in ("yaw", "pitch"):
+            if getattr(self, name) is not None and not math.isfinite(getattr(self, name)):
+                raise InputError(f"--{name}", f"expected a finite angle, got {getattr(self, name)!r}")
         yaw, pitch = self.yaw, self.pitch
         if target is not None:
             lon, lat = pano.dir_to_lonlat(torch.as_tensor(target, dtype=torch.float64))
@@ -291,6 +332,19 @@ class ViewSpec:
                 self.size or (960, 720))
 
 
+def check_render_size(size: tuple[int, int], max_side: int = MAX_RENDER_SIDE,
+                      pano_size: tuple[int, int] | None = None) -> None:
+    """Refuse a render of ``size`` = (width, height) beyond ``max_side`` (GL's maximum renderbuffer
+    size where known, at most :data:`MAX_RENDER_SIDE`) or :data:`MAX_RENDER_PIXELS` (or the pixels
+    of the panorama, ``pano_size`` = (H, W), when it has more) before any GL object is made."""
+    w, h = size
+    side = min(max_side, MAX_RENDER_SIDE)
+    pixels = max(MAX_RENDER_PIXELS, pano_size[0] * pano_size[1] if pano_size else 0)
+    if max(w, h) > side or w * h > pixels:
+        raise InputError("--size", f"a {w}x{h} render is too large (at most {side} pixels per side and "
+                                   f"{pixels:,} pixels, e.g. 2048x2048 or 2896x1448); pass a smaller --size")
+
+
 # ---------------------------------------------------------------------------------------------
 # output files
 
@@ -298,6 +352,8 @@ class ViewSpec:
 def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """uint8 sRGB of linear ``rgb [h,w,3]``: ``2^exposure`` x ACES (Narkowicz fit, as the viewer's
     colour.glsl); ``exposure`` None: the median luminance maps to 0.18."""
+    if exposure is not None and not math.isfinite(exposure):  # 2^nan: a black (or white) image
+        raise InputError("--exposure", f"expected a finite EV, got {exposure!r}")
     x = np.maximum(rgb, 0)
     if exposure is None:
         lum = x @ LUMA
@@ -309,46 +365,68 @@ def tonemap(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
 
 
 def write_passes(out: dict[str, np.ndarray], path: str, exposure: float | None,
-                 meta: dict | None = None) -> list[str]:
-    """``.exr``: the passes (and a PNG next to it); ``.png``: the tonemapped composite.  Atomic writes."""
+                 meta: dict | None = None, files=None) -> list[str]:
+    """``.exr``: the passes (and a PNG next to it); ``.png``: the tonemapped composite.  Written as one
+    atomic set (:class:`phyir.io.AtomicSet`; ``files``: a caller's set to add them to instead)."""
     from PIL import Image
 
-    from phyir.io import atomic_write, exr
+    from phyir.io import AtomicSet, exr
 
     stem, ext = os.path.splitext(path)
     ext = ext.lower()
     if ext not in (".exr", ".png"):
         raise InputError(path, "the output must be .exr (passes + PNG) or .png")
-    written = []
-    if ext == ".exr":
-        c, o = out["composite"], out["object"]
-        chans = {"R": c[..., 0], "G": c[..., 1], "B": c[..., 2], "object.A": out["alpha"],
-                 "shadow.Y": out["shadow"], **{f"object.{k}": o[..., i] for i, k in enumerate("RGB")}}
-        attrs = {f"phyir.{k}": str(v) for k, v in (meta or {}).items()}
-        with atomic_write(path) as tmp:
-            exr.write_parts(tmp, [("insert", attrs, {k: np.ascontiguousarray(v, np.float32)
-                                                     for k, v in chans.items()})])
-        written.append(path)
     png = stem + ".png"
-    with atomic_write(png) as tmp:
-        Image.fromarray(tonemap(out["composite"], exposure), "RGB").save(tmp, format="PNG")
-    written.append(png)
-    return written
+    with contextlib.nullcontext(files) if files is not None else AtomicSet() as out_files:
+        if ext == ".exr":
+            c, o = out["composite"], out["object"]
+            chans = {"R": c[..., 0], "G": c[..., 1], "B": c[..., 2], "object.A": out["alpha"],
+                     "shadow.Y": out["shadow"], **{f"object.{k}": o[..., i] for i, k in enumerate("RGB")}}
+            attrs = {f"phyir.{k}": str(v) for k, v in (meta or {}).items()}
+            exr_tmp, png_tmp = out_files.add(path), out_files.add(png)
+            exr.write_parts(exr_tmp, [("insert", attrs, {k: np.ascontiguousarray(v, np.float32)
+                                                         for k, v in chans.items()})])
+        else:
+            png_tmp = out_files.add(png)
+        Image.fromarray(tonemap(out["composite"], exposure), "RGB").save(png_tmp, format="PNG")
+    return [path, png] if ext == ".exr" else [png]
 
 
-def flicker(frames: list[dict[str, np.ndarray]]) -> dict[str, float]:
+class Flicker:
+    """:func:`flicker` one frame at a time (:meth:`add`), holding only the previous frame, so an
+    animation of any length is measured while its frames are written."""
+
+    def __init__(self):
+        self.prev: dict[str, np.ndarray] | None = None
+        self.diffs: list[float] = []
+        self.means: list[float] = []
+
+    def add(self, b: dict[str, np.ndarray]) -> None:
+        a = self.prev
+        if a is not None:
+            static = ((a["alpha"] == 0) & (b["alpha"] == 0) & (a["shadow_delta"] == 0)
+                      & (b["shadow_delta"] == 0))
+            if static.any():
+                la, lb = a["composite"][static] @ LUMA, b["composite"][static] @ LUMA
+                self.diffs.append(float(np.abs(la - lb).mean() / max(float(la.mean()), 1e-12)))
+        self.means.append(float((b["object"] @ LUMA).sum() / max(float(b["alpha"].sum()), 1e-12)))
+        self.prev = b
+
+    def result(self) -> dict[str, float]:
+        return _flicker_stats(self.diffs, self.means)
+
+
+def flicker(frames) -> dict[str, float]:
     """Frame-to-frame change on static background pixels (neither object nor shadow in either
     frame), relative to their mean luminance, and the relative jitter of the object's mean radiance
     (its second difference along the path: a smooth change of lighting scores ~0)."""
-    diffs, means = [], []
-    for a, b in zip(frames, frames[1:]):
-        static = (a["alpha"] == 0) & (b["alpha"] == 0) & (a["shadow_delta"] == 0) & (b["shadow_delta"] == 0)
-        if static.any():
-            la, lb = a["composite"][static] @ LUMA, b["composite"][static] @ LUMA
-            diffs.append(float(np.abs(la - lb).mean() / max(float(la.mean()), 1e-12)))
+    acc = Flicker()
     for f in frames:
-        w = f["alpha"]
-        means.append(float((f["object"] @ LUMA).sum() / max(float(w.sum()), 1e-12)))
+        acc.add(f)
+    return acc.result()
+
+
+def _flicker_stats(diffs: list[float], means: list[float]) -> dict[str, float]:
     m = np.asarray(means)
     scale = max(float(m.mean()), 1e-12)
     jitter = float(np.abs(m[2:] - 2 * m[1:-1] + m[:-2]).max()) / scale if len(m) > 2 else 0.0
@@ -357,27 +435,35 @@ def flicker(frames: list[dict[str, np.ndarray]]) -> dict[str, float]:
             "object_jitter": jitter}
 
 
-def write_animation(frames: list[dict[str, np.ndarray]], path: str, exposure: float | None) -> dict:
+def write_animation(frames, path: str, exposure: float | None) -> dict:
     """Numbered frames ``<stem>_0000<ext>`` (passes as :func:`write_passes`), ``<stem>.gif`` and
-    ``<stem>_flicker.json``; one exposure for all frames (the first frame's when automatic)."""
+    ``<stem>_flicker.json``; one exposure for all frames (the first frame's when automatic).
+    ``frames``: any iterable (e.g. a generator rendering them): each frame is written and measured
+    as it comes, only the GIF's thumbnails and the previous frame stay in memory."""
     from PIL import Image
 
-    from phyir.io import atomic_write
+    from phyir.io import AtomicSet
 
     stem, ext = os.path.splitext(path)
-    if exposure is None:
-        lum = frames[0]["composite"] @ LUMA
-        exposure = math.log2(0.18 / max(float(np.median(lum[lum > 0])) if (lum > 0).any() else 1.0, 1e-12))
     images = []
-    for i, f in enumerate(frames):
-        write_passes(f, f"{stem}_{i:04d}{ext}", exposure)
-        im = Image.fromarray(tonemap(f["composite"], exposure), "RGB")
-        if im.width > GIF_WIDTH:
-            im = im.resize((GIF_WIDTH, round(im.height * GIF_WIDTH / im.width)), Image.BILINEAR)
-        images.append(im)
-    with atomic_write(stem + ".gif") as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=80, loop=0)
-    stats = flicker(frames)
-    with atomic_write(stem + "_flicker.json") as tmp, open(tmp, "w") as fh:
-        json.dump({"frames": len(frames), **stats}, fh, indent=2)
+    stats_acc = Flicker()
+    # [issue 22, class 4] every frame, the GIF and the stats are one atomic set: an interrupted run
+    # leaves the previous animation whole (the frames wait as hidden temporaries until the end)
+    with AtomicSet() as out_files:
+        for i, f in enumerate(frames):
+            if exposure is None:  # the first frame's
+                lum = f["composite"] @ LUMA
+                med = float(np.median(lum[lum > 0])) if (lum > 0).any() else 1.0
+                exposure = math.log2(0.18 / max(med, 1e-12))
+            stats_acc.add(f)
+            write_passes(f, f"{stem}_{i:04d}{ext}", exposure, files=out_files)
+            im = Image.fromarray(tonemap(f["composite"], exposure), "RGB")
+            if im.width > GIF_WIDTH:
+                im = im.resize((GIF_WIDTH, round(im.height * GIF_WIDTH / im.width)), Image.BILINEAR)
+            images.append(im.convert("P", palette=Image.Palette.ADAPTIVE))  # what GIF stores; 1/3 the memory
+        images[0].save(out_files.add(stem + ".gif"), format="GIF", save_all=True, append_images=images[1:],
+                       duration=80, loop=0)
+        stats = stats_acc.result()
+        with open(out_files.add(stem + "_flicker.json"), "w") as fh:
+            json.dump({"frames": len(images), **stats}, fh, indent=2)
     return stats

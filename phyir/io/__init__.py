@@ -13,11 +13,9 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
-import secrets
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,13 +24,32 @@ from torch import Tensor
 
 from phyir.color import linear_to_srgb
 from phyir.errors import InputError, PhyIRError
-from phyir.io import exr, ldr, rgbe
-from phyir.io.sniff import ASPECT_TOL, MAX_SIZE, MIN_SIZE, check_panorama_size, check_size, header_size, sniff
+from phyir.io import exr, files, ldr, rgbe
+from phyir.io.files import (
+    AtomicSet,
+    atomic_files,
+    atomic_write,
+    check_input,
+    check_output,
+    folder_files,
+    is_temporary,
+)
+from phyir.io.sniff import (
+    ASPECT_TOL,
+    MAX_SIZE,
+    MIN_SIZE,
+    check_expansion,
+    check_panorama_size,
+    check_size,
+    header_size,
+    sniff,
+)
 from phyir.pano import directions
 from phyir.scene import NORMAL_TOL, PanoScene, SceneError
 
 __all__ = [
-    "InputError", "InputWarning", "atomic_write", "load_panorama", "load_scene", "save_panorama",
+    "InputError", "InputWarning", "AtomicSet", "atomic_write", "atomic_files", "check_input", "check_output",
+    "folder_files", "is_temporary", "load_panorama", "load_scene", "save_panorama",
     "save_scene", "read_raw", "read_scene", "check_panorama_size", "check_size", "header_size", "sniff",
     "LAYER_CHANNELS", "MIN_SIZE", "MAX_SIZE", "ASPECT_TOL",
 ]
@@ -55,45 +72,6 @@ _RANGES = {"image": (0.0, None), "probes": (0.0, None), "depth": (0.0, None), "a
 
 class InputWarning(UserWarning):
     """Input that was usable after a repair (NaN/Inf replaced, negatives clamped, ...)."""
-
-
-# ---------------------------------------------------------------------------------------------
-# atomic writes
-
-
-@contextlib.contextmanager
-def atomic_write(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary path next to ``path``; on success it replaces ``path`` atomically.
-
-    The temporary file (``.<stem>.<random>.tmp<ext>``, same directory, so ``os.replace`` is a
-    rename on one file system) exists and is empty when yielded.  If the block raises (including
-    KeyboardInterrupt) it is removed and ``path`` is left untouched.
-    """
-    target = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(target))
-    if not os.path.isdir(folder):
-        raise PhyIRError(f"{target}: cannot write: folder {folder} does not exist")
-    stem, ext = os.path.splitext(os.path.basename(target))
-    for _ in range(100):
-        tmp = os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.tmp{ext}")
-        try:
-            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-            break
-        except FileExistsError:
-            continue
-        except OSError as e:
-            raise PhyIRError(f"{target}: cannot write: {e.strerror}") from None
-    else:  # pragma: no cover - 100 collisions of 32 random bits
-        raise PhyIRError(f"{target}: cannot create a temporary file in {folder}")
-    try:
-        yield tmp
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp)
-        raise
 
 
 # ---------------------------------------------------------------------------------------------
@@ -135,7 +113,6 @@ def read_raw(path: str | os.PathLike, panorama: bool = True,
     e.g. what predict can hold in memory) when given.
     """
     p = os.fspath(path)
-    fmt = sniff(p)
     size_rule = check_panorama_size if panorama else check_size
 
     def check(path: str, H: int, W: int) -> None:
@@ -143,26 +120,30 @@ def read_raw(path: str | os.PathLike, panorama: bool = True,
         if limit is not None:
             limit(path, H, W)
 
-    if fmt == "exr":
-        return _read_raw_exr(p, check)
-    if fmt == "hdr":
-        h = rgbe.read_header(p)
-        check(p, h.height, h.width)
-        img = rgbe.read_pixels(p, h)
-        part = RawPart("image", h.height, h.width, dict.fromkeys("RGB", "RGBE"))
-        part.layers["image"], part.layer_channels["image"] = img.transpose(2, 0, 1), ("R", "G", "B")
-        return RawFile(p, "Radiance HDR", h.resolution, [part], fmt)
-    info = ldr.read_info(p)
-    check(p, info.height, info.width)
-    img = ldr.read_pixels(p, info)
+    with files.open_input(p, "image file") as f:  # opened once: sniffed, header and pixels read
+        fmt, size = sniff(f, p), files.stream_size(f)
+        if fmt == "exr":
+            return _read_raw_exr(f, p, check)
+        if fmt == "hdr":
+            h = rgbe.read_header(f, p)
+            check(p, h.height, h.width)
+            check_expansion(p, 3 * h.height * h.width, size)
+            img = rgbe.read_pixels(f, h, p)
+            part = RawPart("image", h.height, h.width, dict.fromkeys("RGB", "RGBE"))
+            part.layers["image"], part.layer_channels["image"] = img.transpose(2, 0, 1), ("R", "G", "B")
+            return RawFile(p, "Radiance HDR", h.resolution, [part], fmt)
+        info = ldr.read_info(f, p)
+        check(p, info.height, info.width)
+        check_expansion(p, 3 * info.height * info.width, size)
+        img = ldr.read_pixels(f, info, p)
     chans = {"L": "Y", "LA": "YA", "P": "RGB", "RGB": "RGB", "RGBA": "RGBA"}.get(info.mode, info.mode)
     part = RawPart("image", info.height, info.width, dict.fromkeys(chans, f"{info.bits}-bit"))
     part.layers["image"], part.layer_channels["image"] = img.transpose(2, 0, 1), tuple(chans)
     return RawFile(p, info.format, f"{info.bits}-bit {info.mode}", [part], fmt)
 
 
-def _read_raw_exr(p: str, check) -> RawFile:
-    headers = exr.read_headers(p)
+def _read_raw_exr(f, p: str, check) -> RawFile:
+    headers = exr.read_headers(f, p)
     names = [h.name for h in headers]
     scene_i = names.index("scene") if "scene" in names else 0
     for h in headers:
@@ -173,10 +154,11 @@ def _read_raw_exr(p: str, check) -> RawFile:
         for c, (xs, ys) in h.sampling.items():
             if (xs, ys) != (1, 1):
                 raise InputError(p, f"unsupported: channel {c!r} is subsampled ({xs}x{ys})")
+    check_expansion(p, sum(h.height * h.width * len(h.channels) for h in headers), files.stream_size(f))
     probes = next((h for h in headers if h.name == "probes" and h.index != scene_i), None)
     if probes is not None:
         _probe_layout(p, probes.strings, probes.height, probes.width)  # refuse before decoding
-    arrays = exr.read_pixels(p, headers)
+    arrays = exr.read_pixels(p, headers)  # the C++ library opens the (checked, regular) file itself
     parts = []
     for h, chans in zip(headers, arrays):
         role = "scene" if h.index == scene_i else ("probes" if h is probes else "other")
@@ -300,8 +282,9 @@ def _main_part(raw: RawFile) -> RawPart:
 
 
 def _repair(path: str, layer: str, a: np.ndarray) -> np.ndarray:
-    """Make one layer finite and in range, warning once with the counts of what was changed."""
-    a = np.array(a, dtype=np.float32, copy=True)
+    """Make one layer finite and in range, warning once with the counts of what was changed.  Works
+    in place on a contiguous float32 layer (the callers' raw arrays are theirs alone)."""
+    a = np.ascontiguousarray(a, dtype=np.float32)
     notes = []
     bad = ~np.isfinite(a)
     if layer == "normal":

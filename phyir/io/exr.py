@@ -9,6 +9,7 @@ Errors are raised as :class:`~phyir.errors.InputError` naming the file.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import struct
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from phyir.errors import InputError
+from phyir.io.files import input_stream, stream_size
 
 MAGIC = b"\x76\x2f\x31\x01"
 PIXEL_TYPES = {0: "UINT", 1: "HALF", 2: "FLOAT"}
@@ -50,15 +52,14 @@ class ExrHeader:
         return self.data_window[2] - self.data_window[0] + 1
 
 
-def read_headers(path: str | os.PathLike) -> list[ExrHeader]:
-    """Parse every part's header of an OpenEXR file without the C++ library.
+def read_headers(src, name: str | None = None) -> list[ExrHeader]:
+    """Parse every part's header of an OpenEXR file (a path or an open file) without the C++ library.
 
     Raises :class:`InputError` for a wrong magic number, a truncated or malformed header, deep data
     and empty or inverted data windows.  Sizes are *not* limited here (see phyir.io).
     """
-    with open(path, "rb") as f:
-        size = os.fstat(f.fileno()).st_size
-        return _Parser(f, size, os.fspath(path)).headers()
+    with input_stream(src, name) as (f, p):
+        return _Parser(f, stream_size(f), p).headers()
 
 
 class _Parser:
@@ -254,4 +255,14 @@ def write_parts(path: str | os.PathLike, parts: list[tuple[str, dict, dict[str, 
         header = {"compression": comp, "type": OpenEXR.scanlineimage, "displayWindow": display,
                   **attrs}
         out.append(OpenEXR.Part(header, {k: np.ascontiguousarray(v) for k, v in chans.items()}, name))
-    OpenEXR.File(out).write(os.fspath(path))
+    try:
+        OpenEXR.File(out).write(os.fspath(path))
+    except RuntimeError as e:  # the library wraps the OS's refusal (a full disk, ...) in its text
+        code = next((c for c in _OS_ERRNOS if os.strerror(c) in str(e)), None)
+        if code is None:
+            raise
+        raise OSError(code, os.strerror(code), os.fspath(path)) from None
+
+
+_OS_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO,
+              errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG)

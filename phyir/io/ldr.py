@@ -7,20 +7,23 @@ replicated to RGB, and the pixel values are taken as sRGB-encoded (gAMA/iCCP chu
 
 from __future__ import annotations
 
-import os
 import struct
 import warnings
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import BinaryIO
 
 import numpy as np
 
 from phyir.color import srgb_to_linear
 from phyir.errors import InputError
+from phyir.io.files import input_stream, stream_size
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8\xff"
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> samples per pixel
+MAX_METADATA = 64 << 20  # bytes a PNG text or ICC chunk may inflate to (it is ignored, not kept)
 
 
 @dataclass
@@ -32,57 +35,74 @@ class LdrInfo:
     mode: str  # e.g. "RGB", "RGBA", "L", "P"
 
 
-def read_info(path: str | os.PathLike) -> LdrInfo:
-    """Size and sample format from the file header, without decoding the pixels."""
-    p = os.fspath(path)
-    with open(p, "rb") as f:
+def read_info(src, name: str | None = None) -> LdrInfo:
+    """Size and sample format from the file header (a path or an open file), without decoding."""
+    with input_stream(src, name) as (f, p):
         head = f.read(33)
-    if head.startswith(PNG_MAGIC):
-        if len(head) < 33 or head[12:16] != b"IHDR":
-            raise InputError(p, "corrupt or truncated PNG (no IHDR chunk)")
-        W, H, bits, ctype, _comp, _filt, interlace = struct.unpack(">IIBBBBB", head[16:29])
-        if ctype not in _PNG_CHANNELS:
-            raise InputError(p, f"corrupt PNG (unknown colour type {ctype})")
-        if bits not in (8, 16):
-            raise InputError(p, f"unsupported bit depth: {bits}-bit PNG (8 or 16 bits per sample)")
-        if bits == 16 and ctype == 3:
-            raise InputError(p, "corrupt PNG (16-bit palette images don't exist)")
-        if bits == 16 and interlace:
-            raise InputError(p, "unsupported: interlaced 16-bit PNG (re-save without interlacing)")
-        mode = {0: "L", 2: "RGB", 3: "P", 4: "LA", 6: "RGBA"}[ctype]
-        return LdrInfo("PNG", H, W, bits, mode)
-    from PIL import Image
+        if head.startswith(PNG_MAGIC):
+            return _png_info(head, p)
+        from PIL import Image
 
-    try:
-        with Image.open(p) as im:
-            return LdrInfo(im.format or "?", im.height, im.width, 8, im.mode)
-    except Exception as e:
-        raise InputError(p, f"not a readable image ({_one_line(e)})") from None
+        try:
+            f.seek(0)
+            with Image.open(f) as im:
+                return LdrInfo(im.format or "?", im.height, im.width, 8, im.mode)
+        except Exception as e:
+            raise InputError(p, f"not a readable image ({_one_line(e)})") from None
 
 
-def read_pixels(path: str | os.PathLike, info: LdrInfo) -> np.ndarray:
-    """Decode to linear float32 [H, W, 3] (sRGB decoded, alpha dropped, gray replicated)."""
-    p = os.fspath(path)
-    if info.format == "PNG" and info.bits == 16:
-        samples = _read_png16(p, info)  # [H, W, C] uint16
-        x = samples.astype(np.float32) / 65535.0
-    else:
-        x = _read_pillow(p).astype(np.float32) / 255.0
-    if x.shape[2] in (2, 4):  # drop alpha
-        x = x[:, :, :-1]
-    if x.shape[2] == 1:
-        x = np.repeat(x, 3, axis=2)
-    return srgb_to_linear(x)
+def _png_info(head: bytes, p: str) -> LdrInfo:
+    if len(head) < 33 or head[12:16] != b"IHDR":
+        raise InputError(p, "corrupt or truncated PNG (no IHDR chunk)")
+    W, H, bits, ctype, _comp, _filt, interlace = struct.unpack(">IIBBBBB", head[16:29])
+    if ctype not in _PNG_CHANNELS:
+        raise InputError(p, f"corrupt PNG (unknown colour type {ctype})")
+    if bits not in (8, 16):
+        raise InputError(p, f"unsupported bit depth: {bits}-bit PNG (8 or 16 bits per sample)")
+    if bits == 16 and ctype == 3:
+        raise InputError(p, "corrupt PNG (16-bit palette images don't exist)")
+    if bits == 16 and interlace:
+        raise InputError(p, "unsupported: interlaced 16-bit PNG (re-save without interlacing)")
+    mode = {0: "L", 2: "RGB", 3: "P", 4: "LA", 6: "RGBA"}[ctype]
+    return LdrInfo("PNG", H, W, bits, mode)
 
 
-def _read_pillow(p: str) -> np.ndarray:
-    from PIL import Image
+def _srgb_lut(bits: int) -> np.ndarray:
+    """Linear value of every sample value: decoding is one table look-up, no float temporaries."""
+    top = (1 << bits) - 1
+    return srgb_to_linear(np.arange(top + 1, dtype=np.float32) / np.float32(top))
 
+
+def read_pixels(src, info: LdrInfo, name: str | None = None) -> np.ndarray:
+    """Decode to linear float32 [H, W, 3] (sRGB decoded, alpha dropped, gray replicated); a view of
+    a channel-first [3, H, W] array."""
+    with input_stream(src, name) as (f, p):
+        if info.format == "PNG" and info.bits == 16:
+            samples = _read_png16(f, p, info)  # [H, W, C] uint16
+            lut = _srgb_lut(16)
+        else:
+            samples = _read_pillow(f, p)
+            lut = _srgb_lut(8)
+    rgb = samples[:, :, :3] if samples.shape[2] >= 3 else samples[:, :, :1]  # alpha dropped
+    H, W = rgb.shape[:2]
+    planes = np.empty((3, H, W), np.float32)  # channel-first, as the loaders keep layers
+    step = max(1, (1 << 20) // W)  # rows per look-up: bounded index temporaries
+    for y in range(0, H, step):
+        planes[:, y : y + step] = lut[rgb[y : y + step]].transpose(2, 0, 1)  # gray: broadcast
+    return planes.transpose(1, 2, 0)
+
+
+def _read_pillow(f: BinaryIO, p: str) -> np.ndarray:
+    from PIL import Image, PngImagePlugin
+
+    # metadata (text, ICC profiles) is ignored; Pillow's 1 MB cap on it refused valid files
+    PngImagePlugin.MAX_TEXT_CHUNK = max(PngImagePlugin.MAX_TEXT_CHUNK, MAX_METADATA)
     try:
         with warnings.catch_warnings():
             # the caller has already checked the size against PhyIR's own limits
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(p) as im:
+            f.seek(0)
+            with Image.open(f) as im:
                 if im.mode in ("P", "PA"):
                     im = im.convert("RGBA" if "transparency" in im.info or im.mode == "PA" else "RGB")
                 elif im.mode == "CMYK" or im.mode == "YCbCr":
@@ -95,6 +115,9 @@ def _read_pillow(p: str) -> np.ndarray:
     except InputError:
         raise
     except Exception as e:  # Pillow raises OSError/SyntaxError/ValueError/... for damaged files
+        if "MAX_TEXT_CHUNK" in str(e):
+            raise InputError(p, f"a metadata chunk (text or ICC profile) inflates to more than "
+                                f"{MAX_METADATA >> 20} MB (a decompression bomb?)") from None
         raise InputError(p, f"corrupt or truncated image ({_one_line(e)})") from None
     return a[:, :, None] if a.ndim == 2 else a
 
@@ -107,77 +130,111 @@ def _one_line(e: BaseException) -> str:
 # 16-bit PNG
 
 
-def _read_png16(p: str, info: LdrInfo) -> np.ndarray:
-    with open(p, "rb") as f:
-        data = f.read()
-    pos, idat = 8, []
-    ctype = {"L": 0, "RGB": 2, "LA": 4, "RGBA": 6}[info.mode]
+def _chunks(f: BinaryIO, p: str, size: int) -> Iterator[tuple[bytes, bytes]]:
+    """(type, body) of each chunk after the signature, CRC-checked, up to IEND; a declared length
+    past the end of the file is refused before anything is read."""
+    f.seek(8)
+    pos = 8
     while True:
-        if pos + 8 > len(data):
+        head = f.read(8)
+        if len(head) < 8:
             raise InputError(p, "truncated PNG (file ends before the IEND chunk)")
-        n, typ = struct.unpack(">I4s", data[pos : pos + 8])
-        body = data[pos + 8 : pos + 8 + n]
-        crc = data[pos + 8 + n : pos + 12 + n]
+        n, typ = struct.unpack(">I4s", head)
+        name = typ.decode("latin-1")
+        if pos + 12 + n > size:
+            raise InputError(p, f"truncated PNG (inside the {name} chunk)")
+        body, crc = f.read(n), f.read(4)
         if len(body) != n or len(crc) != 4:
-            raise InputError(p, f"truncated PNG (inside the {typ.decode('latin-1')} chunk)")
+            raise InputError(p, f"truncated PNG (inside the {name} chunk)")
         if struct.unpack(">I", crc)[0] != zlib.crc32(typ + body):
-            raise InputError(p, f"corrupt PNG (CRC mismatch in the {typ.decode('latin-1')} chunk)")
-        if typ == b"IDAT":
-            idat.append(body)
-        elif typ == b"IEND":
-            break
+            raise InputError(p, f"corrupt PNG (CRC mismatch in the {name} chunk)")
+        yield typ, body
+        if typ == b"IEND":
+            return
         pos += 12 + n
-    C = _PNG_CHANNELS[ctype]
-    bpp = 2 * C
-    stride = info.width * bpp
+
+
+def _inflate_rows(f: BinaryIO, p: str, info: LdrInfo, row_bytes: int) -> np.ndarray:
+    """The zlib stream of the IDAT chunks inflated into exactly H rows of ``row_bytes``: inflated
+    incrementally with ``max_length``, so a stream that would inflate to more than the header's
+    size (a zlib bomb) is refused as soon as it passes it, holding no more than the image."""
+    need = info.height * row_bytes
+    raw = np.empty(need, np.uint8)
+    got = 0
+    d = zlib.decompressobj()
     try:
-        raw = zlib.decompress(b"".join(idat))
+        for typ, body in _chunks(f, p, stream_size(f)):
+            if typ != b"IDAT":
+                continue
+            data = body
+            while data:
+                piece = d.decompress(data, need - got + 1)
+                if got + len(piece) > need:
+                    raise InputError(p, f"corrupt PNG image data (inflates to more than the {need} "
+                                        f"bytes a {info.height}x{info.width} image needs)")
+                raw[got : got + len(piece)] = np.frombuffer(piece, np.uint8)
+                got += len(piece)
+                data = d.unconsumed_tail
+                if not piece:
+                    break
+        got += len(d.flush(1)) if got == need else 0
     except zlib.error as e:
         raise InputError(p, f"corrupt PNG image data ({e})") from None
-    if len(raw) != info.height * (stride + 1):
-        raise InputError(p, f"corrupt or truncated PNG image data ({len(raw)} bytes, "
-                            f"expected {info.height * (stride + 1)})")
-    rows = np.frombuffer(raw, np.uint8).reshape(info.height, stride + 1)
-    out = _unfilter(rows, bpp, p)
-    return out.view(">u2").reshape(info.height, info.width, C).astype(np.uint16)
+    if got != need:
+        raise InputError(p, f"corrupt or truncated PNG image data ({got} bytes, expected {need})")
+    return raw.reshape(info.height, row_bytes)
 
 
-def _unfilter(rows: np.ndarray, bpp: int, p: str) -> np.ndarray:
-    """Undo PNG's per-row filters.  None/Sub/Up are vectorised; Average/Paeth loop in Python."""
-    H, stride = rows.shape[0], rows.shape[1] - 1
-    out = np.zeros((H, stride), np.uint8)
-    prev = np.zeros(stride, np.uint8)
-    for i in range(H):
-        ft, line = rows[i, 0], rows[i, 1:]
-        if ft == 0:
-            cur = line.copy()
-        elif ft == 1:
-            cur = (line.reshape(-1, bpp).cumsum(axis=0, dtype=np.uint64) & 0xFF).astype(np.uint8)
-            cur = cur.reshape(-1)
-        elif ft == 2:
-            cur = line + prev  # uint8 arithmetic wraps mod 256
-        elif ft in (3, 4):
-            cur = np.frombuffer(_unfilter_slow(bytes(line), bytes(prev), bpp, ft), np.uint8)
-        else:
-            raise InputError(p, f"corrupt PNG (unknown filter type {ft} in row {i})")
-        out[i] = cur
-        prev = out[i]
-    return out
+def _read_png16(f: BinaryIO, p: str, info: LdrInfo) -> np.ndarray:
+    """Big-endian samples [H, W, C] (a view of the inflated rows, unfiltered in place)."""
+    C = _PNG_CHANNELS[{"L": 0, "RGB": 2, "LA": 4, "RGBA": 6}[info.mode]]
+    bpp = 2 * C
+    rows = _inflate_rows(f, p, info, info.width * bpp + 1)
+    bad = np.flatnonzero(rows[:, 0] > 4)
+    if bad.size:
+        raise InputError(p, f"corrupt PNG (unknown filter type {rows[bad[0], 0]} in row {bad[0]})")
+    unfilter(rows, bpp)
+    return rows[:, 1:].view(">u2").reshape(info.height, info.width, C)
 
 
-def _unfilter_slow(line: bytes, prev: bytes, bpp: int, ft: int) -> bytes:
-    cur = bytearray(line)
-    for x in range(len(cur)):
-        a = cur[x - bpp] if x >= bpp else 0
-        b = prev[x]
-        if ft == 3:
-            cur[x] = (cur[x] + ((a + b) >> 1)) & 0xFF
-        else:
-            c = prev[x - bpp] if x >= bpp else 0
-            pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
-            pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
-            cur[x] = (cur[x] + pred) & 0xFF
-    return bytes(cur)
+BAND = 1024  # rows unfiltered together: the skewed copy holds (band + W) x band pixels
+
+
+def unfilter(rows: np.ndarray, bpp: int, band: int = BAND) -> None:
+    """Undo PNG's filters in place: ``rows`` [H, 1 + W * bpp] (each row's filter type, 0-4, first),
+    ``band`` rows at a time."""
+    for top in range(0, rows.shape[0], band):
+        _unfilter_band(rows, top, min(top + band, rows.shape[0]), bpp)
+
+
+def _unfilter_band(rows: np.ndarray, top: int, end: int, bpp: int) -> None:
+    """Undo PNG's per-row filters (types 0-4, checked by the caller) of rows ``top:end`` in place;
+    row ``top - 1`` is already unfiltered.
+
+    Each pixel depends on its left, upper and upper-left neighbours, so the pixels of one
+    anti-diagonal (row + column = d) are independent: the band is skewed so that diagonal d is the
+    contiguous slab ``skew[d]`` and decoded slab after slab (band + W steps of whole-slab numpy
+    operations instead of a Python step per byte)."""
+    H, W = end - top, (rows.shape[1] - 1) // bpp
+    skew = np.zeros((H + W + 1, H + 1, bpp), np.uint8)  # skew[r + x, r] = pixel (top + r - 1, x)
+    if top:
+        skew[0:W, 0] = rows[top - 1, 1:].reshape(W, bpp)  # the row above the band, decoded
+    for r in range(1, H + 1):
+        skew[r : r + W, r] = rows[top + r - 1, 1:].reshape(W, bpp)
+    ft = rows[top:end, 0]
+    for d in range(1, H + W):
+        lo, hi = max(1, d - W + 1), min(H, d) + 1  # the band's rows r with a pixel on diagonal d
+        cur = skew[d, lo:hi]
+        a = skew[d - 1, lo:hi].astype(np.int16)  # left
+        b = skew[d - 1, lo - 1 : hi - 1].astype(np.int16)  # up
+        c = skew[d - 2, lo - 1 : hi - 1].astype(np.int16)  # up-left
+        t = ft[lo - 1 : hi - 1, None]
+        pa, pb, pc = np.abs(b - c), np.abs(a - c), np.abs(a + b - 2 * c)
+        paeth = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
+        pred = np.select([t == 1, t == 2, t == 3, t == 4], [a, b, (a + b) >> 1, paeth], 0)
+        cur += pred.astype(np.uint8)  # uint8 arithmetic wraps mod 256
+    for r in range(1, H + 1):
+        rows[top + r - 1, 1:] = skew[r : r + W, r].reshape(-1)
 
 
 def encode_png16(rgb16: np.ndarray) -> bytes:

@@ -11,13 +11,13 @@ new-style RLE scanlines.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from phyir.errors import InputError
+from phyir.io.files import input_stream
 
 _MAX_HEADER = 64 * 1024
 _RES = re.compile(rb"^([-+])([XY]) +(\d+) +([-+])([XY]) +(\d+)$")
@@ -37,10 +37,10 @@ class HdrHeader:
         return self.height if self.resolution.split()[0][1] == "Y" else self.width
 
 
-def read_header(path: str | os.PathLike) -> HdrHeader:
-    """Parse the text header and the resolution line (no pixel data is read)."""
-    p = os.fspath(path)
-    with open(p, "rb") as f:
+def read_header(src, name: str | None = None) -> HdrHeader:
+    """Parse the text header and the resolution line of a path or an open file (no pixel data is
+    read)."""
+    with input_stream(src, name) as (f, p):
         head = f.read(_MAX_HEADER)
     if not head.startswith(b"#?"):
         raise InputError(p, "not a Radiance HDR file (missing '#?' signature)")
@@ -59,8 +59,12 @@ def read_header(path: str | os.PathLike) -> HdrHeader:
             raise InputError(p, f"corrupt Radiance HDR header line {line[:60]!r}") from None
     if fmt != "32-bit_rle_rgbe":
         raise InputError(p, f"unsupported Radiance HDR FORMAT={fmt} (only 32-bit_rle_rgbe)")
-    if not (exposure > 0 and np.isfinite(exposure)):
-        raise InputError(p, f"invalid EXPOSURE {exposure} in Radiance HDR header")
+    # [issue 22, class 5] dividing out an absurd EXPOSURE (1e300, 1e-40) under- or overflows float32
+    # to an all-black or infinite image: refuse anything beyond 2^+-64 (64 stops either way)
+    if not (np.isfinite(exposure) and 2.0 ** -64 <= exposure <= 2.0 ** 64):
+        raise InputError(p, f"EXPOSURE={exposure:g} in the Radiance HDR header is not a plausible "
+                            f"multiplier (expected 2^-64..2^64)")
+    # [end issue 22, class 5]
     res_end = head.find(b"\n", end + 2)
     m = _RES.match(head[end + 2 : res_end].strip()) if res_end > 0 else None
     if m is None or m[2] == m[5]:
@@ -70,29 +74,33 @@ def read_header(path: str | os.PathLike) -> HdrHeader:
     return HdrHeader(H, W, head[end + 2 : res_end].strip().decode(), exposure, fmt, res_end + 1)
 
 
-def read_pixels(path: str | os.PathLike, header: HdrHeader) -> np.ndarray:
-    """Decode the pixels of a Radiance file into float32 [H, W, 3], top row first."""
-    p = os.fspath(path)
-    with open(p, "rb") as f:
+def read_pixels(src, header: HdrHeader, name: str | None = None) -> np.ndarray:
+    """Decode the pixels of a Radiance file (a path or an open file) into float32 [H, W, 3], top row
+    first (a view of a channel-first [3, H, W] array).  At most the bytes the largest encoding of
+    H x W pixels takes are read."""
+    with input_stream(src, name) as (f, p):
         f.seek(header.data_offset)
-        data = f.read()
+        n = header.n_scanlines
+        m = header.height * header.width // n
+        data = f.read(n * (4 + 4 * (m + m // 128 + 1)))  # RLE's worst case; flat: 4 m per line
     sign_slow, axis_slow, _, sign_fast, _, _ = _RES.match(header.resolution.encode()).groups()
     n, m = (header.height, header.width) if axis_slow == b"Y" else (header.width, header.height)
     rgbe = _decode_scanlines(data, n, m, p)  # [n, m, 4] uint8
-    rgb = rgbe_to_float(rgbe)
+    del data
+    out = np.empty((3, header.height, header.width), np.float32).transpose(1, 2, 0)  # channel-first
     # slow axis Y: '-Y' = top to bottom; slow axis X: transpose, then the same sign rules apply
     if axis_slow == b"Y":
         flip_rows, flip_cols = sign_slow == b"+", sign_fast == b"-"
     else:
-        rgb = rgb.transpose(1, 0, 2)
         flip_rows, flip_cols = sign_fast == b"+", sign_slow == b"-"
-    if flip_rows:
-        rgb = rgb[::-1]
-    if flip_cols:
-        rgb = rgb[:, ::-1]
-    if header.exposure != 1.0:
-        rgb = rgb / np.float32(header.exposure)
-    return np.ascontiguousarray(rgb, dtype=np.float32)
+    lines = out[::-1] if flip_rows else out
+    lines = lines[:, ::-1] if flip_cols else lines
+    lines = lines if axis_slow == b"Y" else lines.transpose(1, 0, 2)  # lines[k]: scanline k
+    step = max(1, (1 << 20) // m)  # scanlines per conversion: bounded float temporaries
+    for k in range(0, n, step):
+        rgb = rgbe_to_float(rgbe[k : k + step])
+        lines[k : k + step] = rgb if header.exposure == 1.0 else rgb / np.float32(header.exposure)
+    return out
 
 
 def _decode_scanlines(data: bytes, n: int, m: int, path: str) -> np.ndarray:

@@ -3,6 +3,7 @@ checkpoint file (docs/training.md, "Resuming")."""
 
 from __future__ import annotations
 
+import io
 import json
 import random
 from pathlib import Path
@@ -36,8 +37,10 @@ def save_checkpoint(path: Path, state: dict) -> None:
     from phyir.io import atomic_write
 
     path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    torch.save(state, buf)  # serialised first: torch.save to a file hides a full disk's ENOSPC
     with atomic_write(path) as tmp:
-        torch.save(state, tmp)
+        Path(tmp).write_bytes(buf.getbuffer())
 
 
 def load_checkpoint(path: Path) -> dict:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from phyir.errors import InputError, PhyIRError
 from phyir.learn.losses import STAGE_WEIGHTS, LossOptions, LossWeights
+from phyir.shading.render import METHODS as RENDER_METHODS
 
 STAGE_ORDER = ("gm", "light", "joint", "gs")
 CHECKPOINT = "checkpoint.pt"
@@ -32,6 +33,65 @@ STAGES: dict[str, Stage] = {  # supplement B.1
     "joint": Stage(10, 1e-5, 4, ("gmnet", "lnet"), light=True, refine=False),
     "gs": Stage(80, 5e-4, 16, ("gsnet",), light=False, refine=True),
 }
+
+
+# bounds of the numeric options (docs/robustness.md, "train"): name -> (lo, hi, integer); checked
+# by TrainConfig.check whether they come from flags or a --config file
+BOUNDS: dict[str, tuple[float, float, bool]] = {
+    "epochs": (1, 1_000_000, True), "lr": (1e-12, 10.0, False), "batch_size": (1, 65536, True),
+    "grad_clip": (0.0, 1e9, False), "seed": (0, 2**63 - 1, True), "workers": (0, 256, True),
+    "max_minutes": (1e-3, 1e8, False), "max_steps": (1, 10**12, True), "ckpt_every": (1, 10**12, True),
+    "log_every": (1, 10**12, True), "limit_train": (1, 10**12, True), "limit_val": (1, 10**12, True),
+}
+MAX_TRAIN_SIZE = (1024, 2048)  # training resolution (multiples of 32, the encoder's stride)
+MAX_TRAIN_SIDE = 4096  # probe grid, per side
+# numeric loss options (--loss KEY=VALUE): key -> (lo, hi, integer); every loss weight is in 0..1e6
+LOSS_BOUNDS = {"si_lambda": (0.0, 1.0, False), "sc_sigma": (1e-6, 1e3, False), "render_spp": (1, 4096, True)}
+LOSS_CHOICES = {"depth_mode": ("l2", "scale_invariant"), "render_method": RENDER_METHODS,
+                "metallic_loss": ("l2", "bce")}
+CHOICES = {"schedule": ("constant", "cosine"), "device": ("auto", "cpu", "cuda"), "model": ("lite", "full")}
+# options that change what a resumed run computes: resuming with other values is refused
+# (epochs may grow: a stage can be continued)
+RESUME_FIXED = ("stage", "model", "init", "lr", "batch_size", "size", "probe_grid", "schedule",
+                "grad_clip", "seed", "augment", "limit_train", "loss", "train_only", "reinit", "weights")
+
+
+def option_name(key: str) -> str:
+    return "--" + key.replace("_", "-")
+
+
+def _check_number(key: str, v, bounds: tuple[float, float, bool] | None = None, name: str = "") -> None:
+    import math
+
+    lo, hi, integer = bounds or BOUNDS[key]
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
+    if not ok or (integer and v != int(v)):
+        kind = "an integer" if integer else "a number"
+        raise InputError(name or option_name(key), f"expected {kind} in {lo:g}..{hi:g}, got {v!r}")
+
+
+def _check_pair(key: str, v, hi: tuple[int, int] = (MAX_TRAIN_SIDE, MAX_TRAIN_SIDE), multiple: int = 1,
+                name: str = "") -> None:
+    ok = isinstance(v, (tuple, list)) and len(v) == 2 and all(
+        isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= m and x % multiple == 0
+        for x, m in zip(v, hi))
+    if not ok:
+        extra = f", multiples of {multiple}" if multiple > 1 else ""
+        raise InputError(name or option_name(key), f"expected HxW, integers up to {hi[0]}x{hi[1]}{extra}, "
+                                                   f"got {v!r}")
+
+
+def _check_loss(w: LossWeights, opts: LossOptions) -> None:
+    """Loss weights finite in 0..1e6; loss options in their bounds and choices (``--loss KEY``)."""
+    for key, v in dataclasses.asdict(w).items():
+        _check_number(key, v, (0.0, 1e6, False), f"weights.{key}")
+    for key, bounds in LOSS_BOUNDS.items():
+        _check_number(key, getattr(opts, key), bounds, f"--loss {key}")
+    for key, allowed in LOSS_CHOICES.items():
+        if getattr(opts, key) not in allowed:
+            raise InputError(f"--loss {key}", f"{key} must be {' or '.join(map(repr, allowed))}, "
+                                              f"not {getattr(opts, key)!r}")
+    _check_pair("render_size", list(opts.render_size), MAX_TRAIN_SIZE, name="--loss render_size")
 
 
 @dataclass
@@ -81,12 +141,29 @@ class TrainConfig:
                 d[k] = tuple(d[k])
         return TrainConfig(**d)
 
+    def check(self) -> None:
+        """Refuse out-of-range or non-finite numbers and unknown choices, naming the option (one
+        line); 0 is never read as "the default" (``--batch-size 0`` used to become 8)."""
+        for key in BOUNDS:
+            v = getattr(self, key)
+            if v is not None:
+                _check_number(key, v)
+        if self.size is not None:
+            _check_pair("size", self.size, MAX_TRAIN_SIZE, multiple=32)
+        if self.probe_grid is not None:
+            _check_pair("probe_grid", self.probe_grid)
+        for key, allowed in CHOICES.items():
+            if getattr(self, key) not in allowed:
+                raise InputError(option_name(key), f"expected one of {', '.join(allowed)}, "
+                                                   f"got {getattr(self, key)!r}")
+
     def resolved(self) -> tuple[Stage, LossWeights, LossOptions]:
         if self.stage not in STAGES:
             raise PhyIRError(f"unknown stage {self.stage!r} (choose from {', '.join(STAGE_ORDER)})")
+        self.check()
         st = STAGES[self.stage]
-        st = dataclasses.replace(st, epochs=self.epochs or st.epochs, lr=self.lr or st.lr,
-                                 batch_size=self.batch_size or st.batch_size)
+        pick = {k: getattr(self, k) for k in ("epochs", "lr", "batch_size") if getattr(self, k) is not None}
+        st = dataclasses.replace(st, **pick)
         try:
             w = dataclasses.replace(STAGE_WEIGHTS[self.stage], **self.weights)
             lo = dict(self.loss)
@@ -95,10 +172,29 @@ class TrainConfig:
             opts = dataclasses.replace(LossOptions(), **lo)
         except TypeError as e:
             raise PhyIRError(f"bad loss option: {e}") from None
-        if opts.metallic_loss not in ("l2", "bce"):
-            raise PhyIRError(f"bad loss option: metallic_loss must be 'l2' or 'bce', "
-                             f"not {opts.metallic_loss!r}")
+        _check_loss(w, opts)
         return st, w, opts
+
+
+def resume_changes(stored: dict, cfg: TrainConfig) -> list[str]:
+    """``--option value (checkpoint: value)`` for each :data:`RESUME_FIXED` option whose value
+    differs from the one a checkpoint's run was started with (``stored``: its ``config``)."""
+    from phyir.learn.checkpoints import jsonable
+
+    now = jsonable(dataclasses.asdict(cfg))
+    out = []
+    for key in RESUME_FIXED:
+        if key in stored and stored[key] != now[key]:
+            out.append(f"{option_name(key)} {_shown(now[key])} (checkpoint: {_shown(stored[key])})")
+    return out
+
+
+def _shown(v) -> str:
+    if v is None:
+        return "default"
+    if isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) for x in v):
+        return f"{v[0]}x{v[1]}"
+    return json.dumps(v) if not isinstance(v, str) else v
 
 
 def load_config_file(path: str | os.PathLike) -> dict:

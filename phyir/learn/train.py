@@ -45,7 +45,16 @@ from phyir.learn.checkpoints import (
     save_checkpoint,
     set_rng_state,
 )
-from phyir.learn.config import CHECKPOINT, EXPORT, STAGE_ORDER, STAGES, Stage, TrainConfig, load_config_file
+from phyir.learn.config import (
+    CHECKPOINT,
+    EXPORT,
+    STAGE_ORDER,
+    STAGES,
+    Stage,
+    TrainConfig,
+    load_config_file,
+    resume_changes,
+)
 from phyir.learn.distributed import Dist, gather, setup_dist
 from phyir.learn.logs import log_step, log_val, progress_bar, tensorboard, truncate_log
 from phyir.learn.losses import LossOptions, LossWeights, pick_output, total_loss
@@ -188,7 +197,7 @@ def _initial_weights(cfg: TrainConfig, model: PhyIRModel) -> str | None:
 
 def _model_config(cfg: TrainConfig) -> ModelConfig:
     """Architecture: from the starting weights when there are any, else the named size."""
-    from phyir.learn.weights import read_weights
+    from phyir.learn.weights import model_config, read_weights
 
     src = cfg.init
     if src is None and cfg.stage != "gm":
@@ -198,7 +207,7 @@ def _model_config(cfg: TrainConfig) -> ModelConfig:
                 src = str(p)
                 break
     if src and src != "scratch":
-        return ModelConfig.from_dict(read_weights(src)[1])
+        return model_config(src, read_weights(src)[1])
     return ModelConfig.named(cfg.model)
 
 
@@ -379,6 +388,8 @@ def _train_epoch(run: _Run) -> tuple[bool, bool]:
     bar = progress_bar(cfg, d, batches.steps, run.start, desc)
     stop = stopped = False
     for b, scene in enumerate(loader, start=run.start):
+        if isinstance(scene, WorkerError):
+            raise PhyIRError(scene.message)
         t0 = time.monotonic()
         mean = _train_step(run, scene)
         run.losses.append(float(mean[0]))
@@ -408,8 +419,14 @@ def train(cfg: TrainConfig, datasets=None) -> dict:
     Returns a summary: ``status`` ("done" or "stopped"), ``step``, ``epoch``, ``losses`` (the global
     mean loss of each step of this run), ``val`` (last validation metrics), ``checkpoint``.
     """
+    cfg.check()
     ckpt_path = Path(cfg.out) / cfg.stage / CHECKPOINT
     resume = load_checkpoint(ckpt_path) if ckpt_path.is_file() else None
+    changed = resume_changes(resume.get("config") or {}, cfg) if resume else []
+    if changed:  # the checkpoint's run would silently go on with other settings
+        raise InputError(ckpt_path, "resuming with options other than the checkpoint's: "
+                                    f"{', '.join(changed)}; rerun with the checkpoint's values, or start "
+                                    "a new run (another --out, or delete this checkpoint)")
     run = _build_run(cfg, datasets, resume)
     _restore(run, resume)
     _open_logs(run, resume is not None)
@@ -485,11 +502,44 @@ def validate(model: PhyIRModel, stage: Stage, val_set, d: Dist, batch_size: int 
 # small helpers
 
 
+@dataclass
+class WorkerError:
+    """A user error (a corrupt scene file ...) met in a data-loading worker process, carried to the
+    training process as a value: raised there, it would arrive wrapped in the worker's traceback."""
+
+    message: str
+
+
+class _Guarded(torch.utils.data.Dataset):
+    """``dataset`` whose items are :class:`WorkerError` where reading them raised a PhyIRError."""
+
+    def __init__(self, dataset):
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, i):
+        try:
+            return self.dataset[i]
+        except PhyIRError as e:
+            return WorkerError(str(e))
+
+
+def _collate_guarded(items: list):
+    from phyir.learn.datasets import collate
+
+    failed = next((x for x in items if isinstance(x, WorkerError)), None)
+    return failed if failed is not None else collate(items)
+
+
 def _loader(dataset, batches: list[list[int]], workers: int, seed: int):
     from torch.utils.data import DataLoader
 
     from phyir.learn.datasets import collate
 
+    if workers:  # errors in worker processes come back as values (WorkerError), raised here
+        dataset, collate = _Guarded(dataset), _collate_guarded
     # a private generator: creating the iterator draws worker seeds from it, not from the global RNG
     # (which would then depend on how often the run was resumed)
     return DataLoader(dataset, batch_sampler=batches, collate_fn=collate, num_workers=workers,

@@ -11,10 +11,14 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from phyir.errors import InputError
+
+if TYPE_CHECKING:
+    from phyir.nets.model import ModelConfig
 
 FORMAT = "phyir-weights-1"
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "assets" / "weights"
@@ -78,10 +82,87 @@ def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict
     return tensors, arch
 
 
-def load_into(model, path: str | os.PathLike, _read: tuple | None = None) -> None:
-    """Load a weights file into an existing model, refusing any architecture mismatch."""
-    tensors, arch = _read or read_weights(path)
-    want = model.state_dict()
+# bounds of every architecture field a weights file may state (docs/robustness.md, "Weights
+# metadata"): checked before anything is built, so a hostile value can't allocate a huge model
+_WIDTH = (1 / 64, 4.0)  # channel multipliers (full = 1.0, lite = 0.5 / 0.25)
+_INT_FIELDS = {"light_head_kernel": (1, 7), "light_scale": (1, 8), "probe_block": (1, 1024),
+               "gs_width": (1, 256), "gs_radius": (0, 16)}
+_CHOICES = {"norm": ("group", "batch")}
+GS_TARGETS = ("albedo", "roughness", "normal", "metallic")
+MAX_PROBE_SIDE = 128
+LOADABLE_DTYPES = (torch.float16, torch.bfloat16, torch.float32)
+
+
+def _bad(path, key: str, value, expected: str) -> InputError:
+    return InputError(path, f"architecture metadata {key} = {json.dumps(value)[:40]} is invalid "
+                            f"(expected {expected})")
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _check_field(path, key: str, v) -> None:
+    import math
+
+    if key == "size":
+        if not (isinstance(v, str) and 0 < len(v) <= 32):
+            raise _bad(path, key, v, "a name such as 'lite'")
+    elif key.endswith("_width") and key != "gs_width":
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and _WIDTH[0] <= v <= _WIDTH[1]):
+            raise _bad(path, key, v, f"a number in {_WIDTH[0]:g}..{_WIDTH[1]:g}")
+    elif key in _INT_FIELDS:
+        lo, hi = _INT_FIELDS[key]
+        if not (_is_int(v) and lo <= v <= hi):
+            raise _bad(path, key, v, f"an integer in {lo}..{hi}")
+        if key == "light_head_kernel" and v % 2 == 0:
+            raise _bad(path, key, v, "an odd kernel size")
+    elif key in _CHOICES:
+        if v not in _CHOICES[key]:
+            raise _bad(path, key, v, " or ".join(map(repr, _CHOICES[key])))
+    elif key == "probe_size":
+        if not (isinstance(v, list) and len(v) == 2 and all(_is_int(x) and 1 <= x <= MAX_PROBE_SIDE
+                                                            for x in v)):
+            raise _bad(path, key, v, f"[h, w], integers in 1..{MAX_PROBE_SIDE}")
+    elif key == "gs_targets":
+        if not (isinstance(v, list) and v and len(set(map(str, v))) == len(v)
+                and all(t in GS_TARGETS for t in v)):
+            raise _bad(path, key, v, f"a non-empty list of distinct {', '.join(GS_TARGETS)}")
+
+
+def model_config(path: str | os.PathLike, arch) -> ModelConfig:
+    """The :class:`ModelConfig` a weights file's architecture metadata states, every field checked
+    against its bounds (type, range, allowed values); one-line InputError naming ``path``."""
+    import dataclasses
+
+    from phyir.nets.model import ModelConfig
+
+    if not isinstance(arch, dict):
+        raise InputError(path, f"corrupt architecture metadata (a {type(arch).__name__}, not an object)")
+    known = {f.name for f in dataclasses.fields(ModelConfig)}
+    unknown = sorted(set(arch) - known)
+    if unknown:
+        raise InputError(path, f"unknown architecture (fields {', '.join(unknown)[:80]})")
+    for key, value in arch.items():
+        _check_field(path, key, value)
+    return ModelConfig.from_dict(arch)
+
+
+def expected_tensors(config: ModelConfig) -> dict[str, torch.Tensor]:
+    """The state dict (shapes and dtypes) of a model of ``config``, built on the ``meta`` device:
+    no memory is allocated, so any architecture can be checked against a file first."""
+    from phyir.nets.model import PhyIRModel
+
+    with torch.device("meta"):
+        return PhyIRModel(config).state_dict()
+
+
+def check_tensors(path, tensors: dict[str, torch.Tensor], want: dict[str, torch.Tensor],
+                  arch_name: str, model_name: str) -> None:
+    """Refuse tensors that do not fit ``want`` (names, shapes), have a dtype the model can't take
+    (float16/bfloat16/float32 for float tensors, the model's own for integer buffers) or hold
+    NaN/Inf values: one line naming ``path`` and the first offending tensor."""
     missing = [k for k in want if k not in tensors]
     extra = [k for k in tensors if k not in want]
     shape = [k for k in want if k in tensors and tensors[k].shape != want[k].shape]
@@ -95,25 +176,41 @@ def load_into(model, path: str | os.PathLike, _read: tuple | None = None) -> Non
             k = shape[0]
             parts.append(f"{len(shape)} of wrong shape (e.g. {k}: file {list(tensors[k].shape)}, "
                          f"model {list(want[k].shape)})")
-        name = arch.get("size", "?") if isinstance(arch, dict) else "?"
-        raise InputError(path, f"weights of architecture {name!r} do not fit the "
-                               f"{model.config.size!r} model: " + "; ".join(parts))
+        raise InputError(path, f"weights of architecture {arch_name!r} do not fit the "
+                               f"{model_name!r} model: " + "; ".join(parts))
+    for k, t in tensors.items():
+        ok = t.dtype in LOADABLE_DTYPES if want[k].is_floating_point() else t.dtype == want[k].dtype
+        if not ok:
+            raise InputError(path, f"tensor {k} is {str(t.dtype).removeprefix('torch.')}; expected "
+                                   "float16, bfloat16 or float32 weights")
+    for k, t in tensors.items():
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise InputError(path, f"tensor {k} holds NaN or infinite values: the weights are corrupt "
+                                   "(or come from a diverged training run)")
+
+
+def load_into(model, path: str | os.PathLike, _read: tuple | None = None) -> None:
+    """Load a weights file into an existing model, refusing any architecture mismatch."""
+    tensors, arch = _read or read_weights(path)
+    want = model.state_dict()
+    name = arch.get("size", "?") if isinstance(arch, dict) else "?"
+    check_tensors(path, tensors, want, str(name), model.config.size)
     model.load_state_dict({k: v.to(want[k].dtype) for k, v in tensors.items()})
 
 
 def load_model(path: str | os.PathLike | None = None, device: str | torch.device = "cpu"):
     """A :class:`PhyIRModel` built from the architecture stored in ``path`` (default: the shipped
-    lite weights) with its weights loaded, in eval mode."""
-    from phyir.nets.model import ModelConfig, PhyIRModel
+    lite weights) with its weights loaded, in eval mode.  The metadata and the tensors are checked
+    (:func:`model_config`, :func:`check_tensors` against a ``meta``-device model) before the model
+    is built."""
+    from phyir.nets.model import PhyIRModel
 
     path = Path(path) if path is not None else default_weights_path()
-    read = read_weights(path)
-    try:
-        config = ModelConfig.from_dict(read[1])
-    except (TypeError, ValueError) as e:
-        raise InputError(path, f"unknown architecture ({e})") from e
+    tensors, arch = read_weights(path)
+    config = model_config(path, arch)
+    check_tensors(path, tensors, expected_tensors(config), config.size, config.size)
     model = PhyIRModel(config)
-    load_into(model, path, read)
+    load_into(model, path, (tensors, arch))
     return model.to(device).eval()
 
 

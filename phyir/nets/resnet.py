@@ -52,7 +52,9 @@ class ResNet18Encoder(nn.Module):
         self.layer3 = nn.Sequential(BasicBlock(c[2], c[3], 2, norm), BasicBlock(c[3], c[3], 1, norm))
         self.layer4 = nn.Sequential(BasicBlock(c[3], c[4], 2, norm), BasicBlock(c[4], c[4], 1, norm))
         for m in self.modules():
-            if isinstance(m, nn.Conv2d):
+            # not on the meta device (weights files are checked there): its normal_ imports
+            # torch._dynamo, ~1 s
+            if isinstance(m, nn.Conv2d) and not m.weight.is_meta:
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
         for m in self.modules():  # zero-init the last norm of each residual branch (stable start)
             if isinstance(m, BasicBlock):

@@ -29,6 +29,13 @@ SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 EXPOSURE_MEDIAN = 0.18  # median luminance of non-emissive pixels after normalisation (x 2^+-1)
 HALF_MAX = 65000.0  # values are clipped here in half-float files
 MANIFEST = "manifest.json"
+# bounds of a dataset's settings (docs/robustness.md, "Numeric options"), checked before anything
+# renders: the path tracer and the probe atlas grow with the pixel and probe-texel counts
+MAX_SYNTH_SIZE = (1024, 2048)
+MAX_PROBE_SIZE = (64, 128)
+MAX_PROBE_TEXELS = 64 * 128 * 16 * 32 * 4  # grid cells x probe texels (4x the default's)
+MAX_SPP = 65536
+MAX_COUNT = 10_000_000
 
 
 def scene_name(i: int) -> str:
@@ -118,6 +125,26 @@ class DatasetConfig:
     spp: int = 16
     half: bool = True
 
+    def check(self) -> None:
+        """Refuse settings outside the bounds above, naming the option (``--size`` ...)."""
+        H, W = self.size
+        if not (8 <= H <= MAX_SYNTH_SIZE[0] and W == 2 * H):
+            raise PhyIRError(f"--size: {H}x{W} is not possible: need W = 2H and H from 8 to "
+                             f"{MAX_SYNTH_SIZE[0]} (at most {MAX_SYNTH_SIZE[0]}x{MAX_SYNTH_SIZE[1]})")
+        h, w = self.probe_size
+        if not (4 <= h <= MAX_PROBE_SIZE[0] and w == 2 * h):
+            raise PhyIRError(f"--probe-size: {h}x{w} is not possible: need w = 2h and h from 4 to "
+                             f"{MAX_PROBE_SIZE[0]} (at most {MAX_PROBE_SIZE[0]}x{MAX_PROBE_SIZE[1]})")
+        if self.probe_grid is not None:
+            gh, gw = self.probe_grid
+            if gh * gw * h * w > MAX_PROBE_TEXELS:
+                raise PhyIRError(f"--probe-grid: {gh}x{gw} probes of {h}x{w} are {gh * gw * h * w:,} "
+                                 f"texels, more than the limit of {MAX_PROBE_TEXELS:,}")
+        if not 1 <= self.spp <= MAX_SPP:
+            raise PhyIRError(f"--spp: expected 1..{MAX_SPP}, got {self.spp}")
+        if not 1 <= self.count <= MAX_COUNT:
+            raise PhyIRError(f"--count: expected 1..{MAX_COUNT:,}, got {self.count}")
+
     def settings(self) -> TraceSettings:
         # light-map resolution follows the image: 12000 texels at 256x512
         H, W = self.size
@@ -172,6 +199,7 @@ def generate_dataset(out: str | os.PathLike, cfg: DatasetConfig, shard: tuple[in
 
     from phyir.io import save_scene
 
+    cfg.check()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     check_manifest(out, cfg)

@@ -4,35 +4,35 @@ insertion rendered headlessly (EGL) at the panorama's resolution (docs/insertion
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+
+from phyir.commands import options
 
 # checked by phyir.cli before run(): the renderer needs GL
 REQUIRES = ("viewer", "phyir insert", ("moderngl", "glfw", "trimesh"))
 HELP = "insert a sphere, cube, cylinder or mesh into a panorama and render it (EXR passes + PNG, GIF)"
 
 
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    from phyir.errors import InputError
+# bounds of the numeric options, the library's (phyir.insert.views MIN_FOV..MAX_FOV, MIN_SCALE..
+# MAX_SCALE, MAX_DISTANCE, MAX_RENDER_SIDE, MAX_RENDER_PIXELS) repeated so that `phyir --help`
+# imports no torch; tests/robustness/test_bad_inputs_options.py checks they agree
+FOV = (10.0, 150.0)
+SCALE = (1e-3, 100.0)
+POSITION = 1000.0  # metres from the camera, per coordinate
+RENDER_SIDE = 8192
+RENDER_PIXELS = 2048 * 2048
+PIXEL = 1e6  # --at / --path coordinates: finite; the panorama's size is checked once it is loaded
+MAX_FRAMES = 1000
 
-    try:
-        vals = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != n:
-        raise InputError(what, f"expected {n} comma-separated numbers, got {text!r}")
-    return vals
 
-
-def _size(text: str) -> tuple[int, int]:
-    from phyir.errors import InputError
-
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise InputError("--size", f"expected WIDTHxHEIGHT, got {text!r}") from None
-    if not (8 <= w <= 16384 and 8 <= h <= 16384):
-        raise InputError("--size", f"expected 8..16384 pixels per side, got {text!r}")
-    return w, h
+def _path(text: str) -> list[tuple[float, ...]]:
+    """``U1,V1:U2,V2[:...]``: at least two points of two finite numbers."""
+    point = options.numbers(2, -PIXEL, PIXEL, "U,V")
+    points = [point(p) for p in text.split(":")]
+    if len(points) < 2:
+        raise argparse.ArgumentTypeError(f"expected at least two points U1,V1:U2,V2, got {text!r}")
+    return points
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,78 +42,124 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--object", required=True, metavar="OBJ",
         help="sphere (radius 1), cube ([-1,1]^3), cylinder, or a mesh file (OBJ/PLY/STL/OFF/GLB, metres)")
     where = parser.add_mutually_exclusive_group().add_argument
-    where("--at", metavar="U,V", help="stand the object on the surface seen at pixel column U, row V")
-    where("--position", metavar="X,Y,Z", help="put the object's centre at this world point (m)")
-    where("--path", metavar="U1,V1:U2,V2", help="move the object along these pixels (--frames)")
-    add("--frames", type=int, default=24, help="frames along --path (default 24)")
-    add("--scale", type=float, default=1.0,
-        help="size factor: primitives are unit-size (sphere radius 1 m), meshes keep their units")
+    where("--at", metavar="U,V", type=options.numbers(2, -PIXEL, PIXEL, "U,V"),
+          help="stand the object on the surface seen at pixel column U, row V")
+    where("--position", metavar="X,Y,Z", type=options.numbers(3, -POSITION, POSITION, "X,Y,Z"),
+          help=f"put the object's centre at this world point (m, each within +-{POSITION:g})")
+    where("--path", metavar="U1,V1:U2,V2", type=_path, help="move the object along these pixels (--frames)")
+    add("--frames", type=options.number(2, MAX_FRAMES, integer=True), default=24,
+        help=f"frames along --path (2..{MAX_FRAMES}, default 24)")
+    add("--scale", type=options.number(*SCALE), default=None,
+        help=f"size factor ({SCALE[0]:g}..{SCALE[1]:g}): primitives are unit-size, so the scale is their "
+             "radius / half-extent in metres (default 0.25: 25 cm); meshes keep their own units (metres; "
+             "default 1)")
     add("--material", default="diffuse",
         help="diffuse, matte-silver, mirror-silver (supplement Table 2) or B,B,B,R,M")
     add("--fusion", default="three-image", choices=("three-image", "differential"),
         help="supplement D.2: object lit by the environment (three-image, default) or seeing the "
              "virtual plane (differential)")
     add("--view", default="equirect", choices=("equirect", "perspective"))
-    add("--size", type=_size, default=None, metavar="WxH",
-        help="output size (equirect default: the panorama's; perspective: 960x720)")
-    add("--fov", type=float, default=60.0, help="perspective vertical field of view (degrees)")
-    add("--yaw", type=float, default=None, help="perspective yaw, degrees (default: toward the object)")
-    add("--pitch", type=float, default=None, help="perspective pitch, degrees (default: toward the object)")
+    add("--size", type=options.size(8, RENDER_SIDE), default=None, metavar="WxH",
+        help=f"output size (equirect default: the panorama's; perspective: 960x720; at most {RENDER_SIDE} "
+             f"per side and {RENDER_PIXELS:,} pixels, or the panorama's when it has more)")
+    add("--fov", type=options.number(*FOV), default=60.0,
+        help=f"perspective vertical field of view (degrees, {FOV[0]:g}..{FOV[1]:g})")
+    add("--yaw", type=options.number(-3600, 3600), default=None,
+        help="perspective yaw, degrees (default: toward the object)")
+    add("--pitch", type=options.number(-90, 90), default=None,
+        help="perspective pitch, degrees (default: toward the object)")
     add("--quality", default="full", choices=("full", "draft"))
-    add("--exposure", type=float, default=None, metavar="EV",
-        help="PNG/GIF exposure (default: median luminance -> 0.18)")
+    add("--exposure", type=options.number(-64, 64), default=None, metavar="EV",
+        help="PNG/GIF exposure (-64..64; default: median luminance -> 0.18)")
     add("--weights", default=None, metavar="FILE",
         help="model weights for panoramas without depth/probes (default: the shipped ones)")
     add("-o", "--out", required=True, metavar="OUT", help="OUT.exr (passes + OUT.png) or OUT.png")
 
 
-def run(args: argparse.Namespace) -> int:
+def _warn(problem: str | None, what: str = "") -> None:
+    if problem:
+        print(f"phyir insert: warning: {what}{problem}", file=sys.stderr)
+
+
+def _placements(obj, scene, args) -> tuple[str, list[tuple]]:
+    """The placing option and the object's placement (position, rotation, support) of every frame,
+    all computed (and checked: inside the panorama, not around the camera) before any rendering."""
     from phyir.errors import InputError
-    from phyir.insert import views  # GL and trimesh are imported only here
+    from phyir.insert import placement, views
+
+    H, W = scene.size
+    if args.path:
+        option, points = "--path", views.path_points(args.path, args.frames, W, H)
+    elif args.at:
+        option, points = "--at", [args.at]
+    elif args.position:
+        option, points = "--position", None
+    else:
+        raise InputError("--at", "give --at U,V, --position X,Y,Z or --path U1,V1:U2,V2")
+    normal = placement.scene_normals(scene) if points else None
+    out = []
+    for at in points or [None]:
+        views.place_object(obj, scene, at=at, position=None if at else args.position, normal=normal)
+        inside = placement.camera_inside([obj])
+        if inside:
+            raise InputError(option, f"{inside} (--scale)")
+        out.append((obj.position.copy(), obj.rotation.copy(), obj.support))
+    return option, out
+
+
+def run(args: argparse.Namespace) -> int:
+    from phyir.insert import placement, views  # GL and trimesh are imported only here
     from viewer.gl.quality import DRAFT_EXPORT
     from viewer.gl.window import gl_context
     from viewer.insertion import FULL, InsertionRenderer
 
     t0 = time.perf_counter()
     scene = views.load_insert_scene(args.input, weights=args.weights)
-    H, W = scene.size
     obj = views.make_object(args.object, args.scale, args.material)
-    waypoints = None
-    if args.path:
-        waypoints = [_floats(p, 2, "--path") for p in args.path.split(":")]
-        points = views.path_points(waypoints, args.frames, W)
-    elif args.at:
-        views.place_object(obj, scene, at=_floats(args.at, 2, "--at"))
-    elif args.position:
-        views.place_object(obj, scene, position=_floats(args.position, 3, "--position"))
-    else:
-        raise InputError("--at", "give --at U,V, --position X,Y,Z or --path U1,V1:U2,V2")
+    option, poses = _placements(obj, scene, args)
+    spec = views.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
+    views.check_render_size(spec.build(scene, obj.bounding_sphere()[0])[1], pano_size=scene.size)
     ctx = gl_context()
     renderer = InsertionRenderer(ctx)
     try:
+        gl_max = min(int(ctx.info.get(k, views.MAX_RENDER_SIDE))
+                     for k in ("GL_MAX_RENDERBUFFER_SIZE", "GL_MAX_TEXTURE_SIZE"))
         renderer.set_scene(scene)
         quality = FULL if args.quality == "full" else DRAFT_EXPORT
-        spec = views.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
         meta = {"input": args.input, "object": args.object, "material": obj.material.as_text(),
                 "scale": f"{obj.scale:g}", "fusion": args.fusion}
-        if waypoints is None:
-            view, size = spec.build(scene, obj.bounding_sphere()[0])
-            out = renderer.render_view([obj], view, size, quality, args.fusion)
-            files = views.write_passes(out, args.out, args.exposure, meta)
-            print(f"wrote {', '.join(files)} ({size[0]}x{size[1]}, {time.perf_counter() - t0:.1f} s)")
-            return 0
-        from phyir.insert import placement
+        problems: list[str] = []
 
-        normal = placement.scene_normals(scene)
-        frames = []
-        view = size = None
-        for u, v in points:
-            views.place_object(obj, scene, at=(u - 0.5, v - 0.5), normal=normal)
+        def render(pose, view=None):
+            obj.position, obj.rotation, obj.support = pose
             if view is None or spec.kind == "equirect":
                 view, size = spec.build(scene, obj.bounding_sphere()[0])
-            frames.append(renderer.render_view([obj], view, size, quality, args.fusion))
-        stats = views.write_animation(frames, args.out, args.exposure)
-        print(f"wrote {len(frames)} frames, {args.out.rsplit('.', 1)[0]}.gif; static background change "
+            else:
+                size = spec.size or (960, 720)
+            views.check_render_size(size, gl_max, scene.size)
+            out = renderer.render_view([obj], view, size, quality, args.fusion)
+            problem = placement.coverage_problem(out["alpha"])
+            if problem:
+                problems.append(problem)
+            return out, view, size
+
+        if args.path is None:
+            out, _, size = render(poses[0])
+            files = views.write_passes(out, args.out, args.exposure, meta)
+            _warn(problems[0] if problems else None, f"{option}: ")
+            print(f"wrote {', '.join(files)} ({size[0]}x{size[1]}, {time.perf_counter() - t0:.1f} s)")
+            return 0
+
+        def frames():  # rendered one at a time while write_animation writes and measures them
+            view = None
+            for pose in poses:
+                out, view, _ = render(pose, view)
+                yield out
+
+        stats = views.write_animation(frames(), args.out, args.exposure)
+        if problems:
+            _warn(f"{len(problems)} of {len(poses)} frames: {problems[0]}", "--path: ")
+        print(f"wrote {len(poses)} frames, {args.out.rsplit('.', 1)[0]}.gif; static background change "
               f"{stats['static_background_change']:.2e}, object step {stats['object_step']:.3f} "
               f"({time.perf_counter() - t0:.1f} s)")
         return 0

@@ -12,6 +12,7 @@ import torch
 
 from phyir.errors import PhyIRError
 from phyir.insert.objects import Mesh, ObjectMaterial, SceneObject
+from phyir.insert.placement import CAMERA_CLEARANCE
 from phyir.insert.views import look_at, perspective
 from phyir.shading import prefilter
 from phyir.shading.brdf import f0_from_material
@@ -65,8 +66,8 @@ class ImpostorPasses:
                 continue
             st = self.object_state(obj, quality)
             dist = float(np.linalg.norm(st.centre))
-            if dist <= st.radius * 1.02:
-                continue  # the camera is inside the object's bounds
+            if dist <= st.radius * CAMERA_CLEARANCE:
+                continue  # the camera is inside the object's bounds (placement.camera_inside says so)
             half = math.asin(min(st.radius / dist, 0.98)) * 1.03 + 1e-3
             n = int(np.clip(math.ceil(2 * math.tan(half) / angle * quality.supersample), 8, MAX_TILE))
             work.append((dist, st, half, n))

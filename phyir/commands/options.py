@@ -1,0 +1,90 @@
+"""Validated numbers for command-line options: argparse ``type=`` factories used by every numeric
+option of ``phyir`` and ``phyir-view`` (docs/robustness.md, "Numeric options").
+
+Each factory returns a parser that accepts only finite values in a closed range, so ``nan``,
+``inf``, ``1e309`` (which ``float`` reads as inf), ``0`` where it means nothing and absurd sizes
+are refused by argparse in one line naming the option (``phyir insert: error: argument --fov:
+expected a number in 10..150, got 'nan'``; exit 2) before anything runs.  ``float()``'s spellings
+are accepted (``1e-3``, `` 2``, ``1_000``); hex floats and other words are not numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def _parse_number(text: str, integer: bool) -> float:
+    """``text`` as a finite number; an integer (``4``, ``4.0``, ``1e3``) when ``integer``."""
+    try:
+        x = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected {'an integer' if integer else 'a number'}, "
+                                         f"got {text!r}") from None
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    if integer and x != int(x):
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
+    return x
+
+
+def check_range(x: float, lo: float, hi: float, text: str) -> None:
+    if not lo <= x <= hi:
+        raise argparse.ArgumentTypeError(f"expected a number in {_fmt(lo)}..{_fmt(hi)}, got {text!r}")
+
+
+def number(lo: float, hi: float, *, integer: bool = False) -> Callable[[str], float]:
+    """A finite number in [lo, hi] (an ``int`` when ``integer``)."""
+    def parse(text: str):
+        x = _parse_number(text, integer)
+        check_range(x, lo, hi, text)
+        return int(x) if integer else x
+    parse.__name__ = "integer" if integer else "number"  # argparse's "invalid <name> value"
+    return parse
+
+
+def numbers(count: int, lo: float, hi: float, what: str = "X,Y") -> Callable[[str], tuple[float, ...]]:
+    """``count`` comma-separated finite numbers, each in [lo, hi] (``what`` names them: ``U,V``)."""
+    def parse(text: str) -> tuple[float, ...]:
+        parts = str(text).split(",")
+        if len(parts) != count:
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers {what}, got {text!r}")
+        vals = tuple(_parse_number(p, False) for p in parts)
+        if not all(lo <= v <= hi for v in vals):
+            raise argparse.ArgumentTypeError(f"expected numbers in {_fmt(lo)}..{_fmt(hi)}, got {text!r}")
+        return vals
+    parse.__name__ = "numbers"
+    return parse
+
+
+def size(lo: int, hi: int, *, order: str = "WxH", max_pixels: int | None = None,
+         multiple: int = 1) -> Callable[[str], tuple[int, int]]:
+    """``AxB`` (``order`` names the two: ``WxH`` or ``HxW``): integers in [lo, hi], multiples of
+    ``multiple``, at most ``max_pixels`` in all (the documented memory limit of the command)."""
+    def parse(text: str) -> tuple[int, int]:
+        parts = str(text).lower().split("x")
+        try:
+            a, b = (int(p) for p in parts)
+        except ValueError:
+            example = "512x256" if order == "WxH" else "256x512"
+            raise argparse.ArgumentTypeError(f"expected {order} (e.g. {example}), got {text!r}") from None
+        if not (lo <= a <= hi and lo <= b <= hi):
+            raise argparse.ArgumentTypeError(f"expected {lo}..{hi} pixels per side, got {text!r}")
+        if a % multiple or b % multiple:
+            raise argparse.ArgumentTypeError(f"expected sides that are multiples of {multiple}, got {text!r}")
+        if max_pixels is not None and a * b > max_pixels:
+            raise argparse.ArgumentTypeError(f"{text} is {a * b:,} pixels, more than the limit of "
+                                             f"{max_pixels:,}")
+        return a, b
+    parse.__name__ = "size"
+    return parse
+
+
+# any finite number / integer: for options whose range the library checks (e.g. TrainConfig.check)
+finite = number(-math.inf, math.inf)
+integer = number(-math.inf, math.inf, integer=True)
