@@ -88,9 +88,11 @@ def environment_path(glb_path: str) -> str:
 def export_gltf(scene: PanoScene, path: str, *, exr_path: str | None = None,
                 grid: tuple[int, int] = DEFAULT_GRID, objects: Sequence[SceneObject] = (),
                 max_lights: int = MAX_LIGHTS, min_grazing_deg: float = MIN_GRAZING_DEG,
-                fov_deg: float = 60.0) -> ExportReport:
+                fov_deg: float = 60.0, aspect: float = 1.5,
+                camera_rotation: np.ndarray | None = None) -> ExportReport:
     """Write ``path`` (.glb) and ``exr_path`` (default: :func:`environment_path`) for an unbatched scene
-    with depth (see the module doc)."""
+    with depth (see the module doc); the camera: ``fov_deg`` (vertical), ``aspect`` (width / height)
+    and ``camera_rotation`` (see :func:`phyir.export.gltf.write_glb`)."""
     t0 = time.perf_counter()
     if scene.depth is None:
         raise InputError(path, "the scene has no depth layer to build the room from")
@@ -104,7 +106,7 @@ def export_gltf(scene: PanoScene, path: str, *, exr_path: str | None = None,
                   "lumens_per_watt": LUMENS_PER_WATT}
     image = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0).numpy()
     write_together([path, exr_path], [
-        lambda tmp: write_glb(tmp, room, tex, lights, list(objects), fov_deg),
+        lambda tmp: write_glb(tmp, room, tex, lights, list(objects), fov_deg, aspect, camera_rotation),
         lambda tmp: exr.write_parts(tmp, [("scene", {}, dict(zip("RGB", image)))])])
     return ExportReport(path, exr_path, len(room.positions), len(room.faces), room.dropped, len(lights),
                         len(objects), os.path.getsize(path), os.path.getsize(exr_path),

@@ -169,14 +169,20 @@ def add_object(b: GlbBuilder, obj: SceneObject, k: int) -> int:
 
 
 def write_glb(path: str, room: RoomMesh, tex: RoomTextures, lights: list[PunctualLight],
-              objects: list[SceneObject] = (), fov_deg: float = 60.0, aspect: float = 1.5) -> None:
-    """Write the whole document to ``path`` (not atomic: callers write to a temporary)."""
+              objects: list[SceneObject] = (), fov_deg: float = 60.0, aspect: float = 1.5,
+              camera_rotation: np.ndarray | None = None) -> None:
+    """Write the whole document to ``path`` (not atomic: callers write to a temporary).
+    ``camera_rotation``: the camera's camera-to-world 3x3 (looking along its -z, +y up, as glTF's),
+    e.g. a viewer's perspective view; default: looking along -z."""
     b = GlbBuilder()
     b.doc.extensions = {}
     nodes = [add_room(b, room, tex)]
     b.doc.cameras.append(gl.Camera(name="camera", type=gl.PERSPECTIVE, perspective=gl.Perspective(
         yfov=math.radians(fov_deg), aspectRatio=aspect, znear=0.05)))
-    nodes.append(b.node(gl.Node(name="camera", camera=0)))
+    pose = np.eye(4)
+    if camera_rotation is not None:
+        pose[:3, :3] = camera_rotation
+    nodes.append(b.node(gl.Node(name="camera", camera=0, matrix=pose.T.ravel().tolist())))
     if lights:
         nodes.append(add_lights(b, lights))
     nodes += [add_object(b, obj, k) for k, obj in enumerate(objects)]

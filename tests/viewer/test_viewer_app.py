@@ -248,15 +248,35 @@ def test_export_gltf_writes_the_room_and_the_inserted_objects(app, tmp_path):
     assert app.wait_idle(30) and app.error is None
     app.objects.add("sphere")
     app.objects.add("cube", at=(10.0, 24.0))
-    app.views["perspective"].fov = 75.0
+    app.views["perspective"].update(fov=75.0, yaw=0.5, pitch=-0.2)
     report = app.export_gltf(tmp_path / "room.glb")
     assert report.objects == 2 and (tmp_path / "room_env.exr").is_file()
     doc = pygltflib.GLTF2().load(str(tmp_path / "room.glb"))
     assert len([n for n in doc.nodes if n.name.startswith("object_")]) == 2
     assert abs(doc.cameras[0].perspective.yfov - math.radians(75.0)) < 1e-6
+    cam = next(n for n in doc.nodes if n.name == "camera")
+    pose = np.array(cam.matrix).reshape(4, 4).T  # column-major
+    forward = pose[:3, :3] @ [0, 0, -1]  # where the glTF camera looks: the perspective view's centre
+    assert np.allclose(forward, app.views["perspective"].rotation() @ [0, 0, -1])
+    assert forward[1] < -0.1 and forward[0] > 0.3  # pitched down, turned toward +x
     assert any(m.text.startswith(f"exported {tmp_path / 'room.glb'}") for m in app.messages)
     for i in range(len(app.objects.objects) - 1, -1, -1):
         app.objects.delete(i)
+
+
+def test_moving_an_object_around_the_camera_warns_once(app):
+    app.open(box_room(32, 64, variant="viewer"), name="room")
+    assert app.wait_idle(30)
+    obj = app.objects.add("sphere")
+    assert app.objects_problem is None
+    obj.position = obj.position * 0.01  # its centre 1 cm from the camera's ...
+    app.objects.set_scale(0, 0.3)  # ... and an edit: the check runs
+    assert app.objects_problem and "camera is inside" in app.objects_problem
+    warnings = [m for m in app.messages if "camera is inside" in m.text]
+    app.objects.set_visible(0, True)  # still inside: no second warning
+    assert len([m for m in app.messages if "camera is inside" in m.text]) == len(warnings) == 1
+    app.objects.delete(0)
+    assert app.objects_problem is None
 
 
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):

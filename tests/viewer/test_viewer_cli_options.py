@@ -87,3 +87,10 @@ def test_object_that_cannot_be_loaded_is_a_one_line_error(scene_file, tmp_path, 
                "--object", str(tmp_path / "nothere.obj")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "nothere.obj" in err[0]
+
+
+def test_camera_inside_an_object_is_an_error_on_the_command_line(scene_file, tmp_path, capsys):
+    rc = main([str(scene_file), "--no-model", "--headless", "--screenshot", str(tmp_path / "s.png"),
+               "--object", "sphere", "--position", "0,0,0", "--scale", "0.3"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--object sphere: the camera is inside the object" in err[0]

@@ -183,7 +183,7 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
 
     def recording_note(level, text):
         if level == "error":
-            errors.append((app.name, text))
+            errors.append((app.opening or app.name, text))  # a failed open keeps the scene (and name)
         note(level, text)
 
     app.note = recording_note

@@ -223,7 +223,45 @@ def _bench(app: App, args) -> int:
           f"(job {app.timings.get('job', float('nan')):.1f} s: {_fmt_timings(app.timings)})")
     print("  its parts, wall (UI-thread CPU) ms: " +
           ", ".join(f"{k} {1000 * w:.1f} ({1000 * c:.1f})" for k, (w, c) in parts.items()))
+    if app.objects.objects:
+        _bench_drag(app)
     return 0 if ok else 2
+
+
+def _bench_drag(app: App, frames: int = 60) -> None:
+    """Whole frames while the first inserted object is dragged to and fro over its surface, in the
+    perspective view aimed at the objects (``--object ... --bench``), then the frame after release."""
+    import numpy as np
+    import torch
+
+    from phyir import pano
+
+    objs = app.objects.objects
+    centre = np.mean([o.bounding_sphere()[0] for o in objs], axis=0)
+    lon, lat = pano.dir_to_lonlat(torch.as_tensor(centre, dtype=torch.float64))
+    app.set_view("perspective")
+    app.views["perspective"].update(yaw=float(lon), pitch=float(lat))
+    for _ in range(3):
+        app.frame()
+    H, W = app.size
+    u, v, _ = pano.points_to_uv(torch.as_tensor(objs[0].bounding_sphere()[0]), H, W)
+    x, y, front = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+    if not (front and app.objects.begin_drag(float(x), float(y))):
+        print("dragging: the first object is not under the mouse in the perspective view; skipped")
+        return
+    times = []
+    for k in range(frames):
+        t = 2 * math.pi * k / frames
+        app.objects.drag_to(float(x) + 60 * math.sin(t), float(y) + 20 * (1 - math.cos(t)))
+        times.append(app.frame())
+    app.objects.end_drag()
+    still = app.frame()
+    times.sort()
+    faces = sum(len(o.mesh.faces) for o in objs)
+    print(f"dragging 1 of {len(objs)} objects ({faces} triangles), perspective view {app.view_size()[0]}x"
+          f"{app.view_size()[1]}: median {_median_ms(times):.1f} ms, 95th percentile "
+          f"{1000 * times[int(0.95 * (len(times) - 1))]:.1f} ms, max {1000 * times[-1]:.1f} ms over {frames} "
+          f"frames; the full-quality frame after release {1000 * still:.1f} ms")
 
 
 @gl_current

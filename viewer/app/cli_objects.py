@@ -84,6 +84,7 @@ def add_objects(app, specs: list[ObjectSpec]) -> None:
     """Insert ``specs`` into the app's scene (it has depth and probes); one-line errors naming the option."""
     from phyir.insert import views
     from phyir.insert.objects import parse_material
+    from phyir.insert.placement import camera_inside
 
     if specs and not app.objects.sync():
         raise PhyIRError(f"{app.name}: --object needs the scene's depth and probes "
@@ -94,3 +95,6 @@ def add_objects(app, specs: list[ObjectSpec]) -> None:
         if s.at is not None or s.position is not None:
             views.place_object(obj, app.objects.scene(), at=s.at, position=s.position,
                                log=lambda text: app.note("warning", text))
+        problem = camera_inside([obj])
+        if problem:
+            raise PhyIRError(f"--object {s.spec}: {problem}")

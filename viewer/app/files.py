@@ -62,6 +62,11 @@ class FileActions:
         self.worker.start(source, name=name, compare=compare, run_model=self.run_model)
         self._title()
 
+    @property
+    def opening(self) -> str | None:
+        """The name of the file being opened (until it has loaded or failed), else None."""
+        return self._opening.name if self._opening is not None else None
+
     def _begin_opened(self) -> None:
         """The file being opened has loaded: the previous scene goes, the given ground truth comes."""
         opening, self._opening = self._opening, None
@@ -130,7 +135,7 @@ class FileActions:
         self.note("info", f"saved {out}")
 
     def export_gltf(self, path: str | os.PathLike | None = None):
-        """The room, its lights, the inserted objects and the perspective view's field of view as
+        """The room, its lights, the inserted objects and the perspective view's camera as
         glTF (``phyir.export``: PATH.glb + PATH_env.exr, default next to the file); a note says where."""
         from phyir.errors import PhyIRError
         from phyir.export.bundle import export_gltf
@@ -140,8 +145,10 @@ class FileActions:
             raise PhyIRError("nothing to export: the scene has no depth yet")
         if path is None:
             path = f"{os.path.splitext(self.path or self.name)[0]}.glb"
+        cam = self.views["perspective"]
+        w, h = self.view_size()
         report = export_gltf(sc, os.fspath(path), objects=[o for o in self.objects.objects if o.visible],
-                             fov_deg=float(self.views["perspective"].fov))
+                             fov_deg=float(cam.fov), aspect=w / max(h, 1), camera_rotation=cam.rotation())
         self.note("info", f"exported {report.glb} and {report.exr} ({report.lights} lights, "
                           f"{report.objects} objects, {report.seconds:.1f} s)")
         return report

@@ -17,6 +17,7 @@ class InsertedObjects:
         with self.surface.current():
             self.objects = ObjectsPanel(self)
         self._queued_objects = []
+        self.objects_problem: str | None = None  # e.g. the camera inside an object (status bar)
         self.renderer.overlay_passes.insert(0, self.objects.hook)
 
     def _detach_objects(self) -> None:
@@ -44,3 +45,12 @@ class InsertedObjects:
         except PhyIRError as e:
             self.note("error", str(e))
 
+    def check_objects(self) -> None:
+        """After an edit: warn once when the camera comes to be inside an object, which can't be
+        drawn (``phyir.insert.placement.camera_inside``); the status keeps ``objects_problem``."""
+        from phyir.insert.placement import camera_inside
+
+        problem = camera_inside(self.objects.objects)
+        if problem and not self.objects_problem:
+            self.note("warning", problem)
+        self.objects_problem = problem

@@ -69,6 +69,7 @@ class ObjectsPanel:
 
     def _changed(self) -> None:
         self.app.request_redraw()
+        self.app.check_objects()
 
     # -- editing (what the panel's buttons call) ------------------------------------------------
     def add(self, spec: str = "sphere", material: ObjectMaterial | None = None, scale: float | None = None,

@@ -30,6 +30,9 @@ class StatusBar:
             parts.append(f"longest frame while busy {1000 * app.job_max_frame:.0f} ms")
         last = app.messages[-1] if app.messages else None
         imgui.text("   ".join(parts))
+        if app.objects_problem:  # stays while it holds, whatever the last message
+            imgui.same_line()
+            imgui.text_colored(imgui.ImVec4(*LEVEL_COLOURS["warning"]), "  camera inside an object")
         if last is not None:
             imgui.same_line()
             colour = LEVEL_COLOURS.get(last.level, (0.7, 0.7, 0.7, 1))
