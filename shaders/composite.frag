@@ -34,6 +34,9 @@
 #ifndef BLOCKER_SEARCH
 #define BLOCKER_SEARCH 1  // 0: PCSS without its blocker search: the blocker at the object's bounding sphere
 #endif
+#ifndef DRAFT
+#define DRAFT 0  // 1 (with VIEWER): objects and the receivers' kept share only, at a lower resolution
+#endif           // (composite_up.frag puts them over the full-resolution layer)
 #define MAX_OBJECTS 8
 #define MAX_LIGHTS 16
 #define MAX_PROXIES 64
@@ -77,6 +80,8 @@ layout(location = 0) out vec4 out_colour;   // composite (rgb), object alpha (a)
 #if !VIEWER
 layout(location = 1) out vec4 out_object;   // object radiance x alpha (rgb), alpha
 layout(location = 2) out vec4 out_shadow;   // shadow matte (fraction of light removed), dE / pi, 0, 1
+#elif DRAFT
+layout(location = 1) out vec4 out_keep;     // the receiver's kept share of its light (rgb), 1
 #endif
 
 const vec2 POISSON[16] = vec2[16](
@@ -158,6 +163,7 @@ void main() {
     vec4 result = vec4(bg, 0.0);
     vec3 obj_rgb = vec3(0.0);
     float alpha = 0.0, matte = 0.0, de_pi = 0.0;
+    vec3 keep = vec3(1.0);  // the share of the receiver's light the objects leave
     if (inside) {
         vec3 d = uv_to_dir(uv, scene_size);
         // -- the objects (impostor tiles, premultiplied), sorted far to near by the caller
@@ -284,12 +290,16 @@ void main() {
                 matte = clamp(-dot(dE, vec3(0.2126, 0.7152, 0.0722)) / max(lum_pl, 1e-6), 0.0, 1.0);
                 de_pi = dot(shadowed - bg, vec3(0.2126, 0.7152, 0.0722));
                 result.rgb = shadowed;
+                keep = keep_share;
             }
         }
         result.rgb = obj_rgb + (1.0 - alpha) * result.rgb;
         result.a = alpha;
     }
-#if VIEWER
+#if VIEWER && DRAFT
+    out_colour = vec4(obj_rgb, alpha);
+    out_keep = vec4(keep, 1.0);
+#elif VIEWER
     out_colour = display_colour(vec4(result.rgb, inside ? 1.0 : 0.0));
 #else
     out_colour = result;

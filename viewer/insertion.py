@@ -22,6 +22,7 @@ context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import moderngl
 import numpy as np
@@ -262,6 +263,21 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
                 t.release()
             fbo.release()
 
+    def draft_targets(self, w: int, h: int) -> tuple:
+        """The viewer's draft composite targets at w x h (kept while the size stays): a framebuffer
+        and its two linear-filtered float textures (objects, the receivers' kept share)."""
+        have = self._fbos.get("draft")
+        if have is not None and have[1].size == (w, h):
+            return have
+        for r in have or ():
+            r.release()
+        texs = [self.ctx.texture((w, h), 4, dtype="f2") for _ in range(2)]
+        for t in texs:
+            t.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            t.repeat_x = t.repeat_y = False
+        self._fbos["draft"] = (self.ctx.framebuffer(texs), *texs)
+        return self._fbos["draft"]
+
     def release(self) -> None:
         self.release_scene()
         for _mesh, vbo, ibo, vaos in self._meshes.values():
@@ -320,23 +336,73 @@ class InsertionPass:
         rect = ins.screen_rect(drawn, frame.view, (w, h))
         if rect is None:
             return
-        rx, ry, rw, rh = rect
-        d = frame.display
-        prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1, **_composite_defines(quality),
-                           VIEW_KIND=int(isinstance(frame.view, PerspectiveView)), NEAREST=int(frame.nearest),
-                           KIND=KINDS[d.kind], TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0)
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        ctx.viewport = (x + rx, fb_h - y - ry - rh, rw, rh)
-        ins.bind_scene(prog)
-        set_view(prog, frame.view, (x, y, w, h), fb_h)
+        if quality.composite_scale < 1:
+            self._draft(renderer, frame, drawn, rect, fb_h, quality)
+        else:
+            self._full(renderer, frame, drawn, rect, fb_h, quality)
+        ctx.viewport = (vx, vy, vw, vh)
+        self.last_rect = rect
+
+
+    def _frame_program(self, prog, renderer, frame, rect, fb_h: float) -> None:
+        """The view, layer and display uniforms ``prog`` shares with the display pass."""
+        set_view(prog, frame.view, rect, fb_h)
         frame.texture.use(12)
         set_uniform(prog, "layer", 12)
         set_uniform(prog, "pano_size", (float(frame.pano_size[1]), float(frame.pano_size[0])))
         renderer.set_display(prog, frame)  # exposure, tone map and colour map as the display pass
+
+    def _defines(self, frame, quality: Quality, **more: int) -> dict[str, int]:
+        d = frame.display
+        return dict(VIEWER=1, **_composite_defines(quality), NEAREST=int(frame.nearest), KIND=KINDS[d.kind],
+                    VIEW_KIND=int(isinstance(frame.view, PerspectiveView)),
+                    TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0, **more)
+
+    def _full(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
+        """The composite over the region ``rect`` of the view, at its resolution."""
+        ins, ctx = self.insertion, self.insertion.ctx
+        x, y, w, h = frame.rect
+        rx, ry, rw, rh = rect
+        prog = ins.program("fullscreen.vert", "composite.frag", **self._defines(frame, quality))
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.viewport = (x + rx, fb_h - y - ry - rh, rw, rh)
+        ins.bind_scene(prog)
+        self._frame_program(prog, renderer, frame, (x, y, w, h), fb_h)
         ins.composite_uniforms(prog, drawn)
         ins.draw_fullscreen(prog)
-        ctx.viewport = (vx, vy, vw, vh)
-        self.last_rect = rect
+
+    def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
+        """The objects and their shadows at ``quality.composite_scale`` of the region's resolution,
+        then put over the layer at full resolution (the panorama stays sharp while they move)."""
+        ins, ctx = self.insertion, self.insertion.ctx
+        target = ctx.fbo
+        x, y, w, h = frame.rect
+        rx, ry, rw, rh = rect
+        s = quality.composite_scale
+        cw, ch = max(1, math.ceil(rw * s)), max(1, math.ceil(rh * s))
+        fbo, obj_tex, keep_tex = ins.draft_targets(cw, ch)
+        prog = ins.program("fullscreen.vert", "composite.frag", **self._defines(frame, quality, DRAFT=1))
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        fbo.use()
+        ctx.viewport = (0, 0, cw, ch)
+        ins.bind_scene(prog)
+        view = frame.view if isinstance(frame.view, PerspectiveView) else \
+            EquirectView(center=frame.view.center, zoom=frame.view.zoom * s)
+        self._frame_program(prog, renderer, replace(frame, view=view), (-rx * s, -ry * s, w * s, h * s), ch)
+        ins.composite_uniforms(prog, drawn)
+        ins.draw_fullscreen(prog)
+        target.use()
+        region = (x + rx, fb_h - y - ry - rh, rw, rh)
+        ctx.viewport = region
+        up = ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
+        self._frame_program(up, renderer, frame, (x, y, w, h), fb_h)
+        obj_tex.use(13)
+        keep_tex.use(14)
+        set_uniform(up, "draft_object", 13)
+        set_uniform(up, "draft_keep", 14)
+        set_uniform(up, "draft_rect", tuple(float(r) for r in region))
+        set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
+        ins.draw_fullscreen(up)
 
 
 def _composite_defines(quality: Quality) -> dict[str, int]:

@@ -126,3 +126,36 @@ def test_panel_and_gizmo_build_in_a_frame(app, monkeypatch):
     assert len(calls) == 2
     app.set_view("equirect")
     panel.delete(len(panel.objects) - 1)
+
+
+@pytest.mark.parametrize("view", ["equirect", "perspective"])
+def test_dragging_draws_objects_at_half_resolution_over_the_sharp_layer(app, view):
+    """While an object moves the composite runs at DRAGGING.composite_scale of the region's resolution
+    (composite_up.frag): away from the objects and their shadows the picture is the full-quality one
+    bit for bit (the layer at full resolution), near them within the draft's coarseness."""
+    from phyir.insert.objects import PRESETS
+
+    panel = app.objects
+    app.set_view(view)
+    if view == "perspective":  # aimed at where the object will stand
+        H, W = app.size
+        d = pano.uv_to_dir(torch.tensor(40.5), torch.tensor(50.5), H, W)
+        lon, lat = pano.dir_to_lonlat(d)
+        app.views["perspective"].update(yaw=float(lon), pitch=float(lat))
+    bare = view_pixels(app)
+    panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
+    try:
+        still = view_pixels(app)
+        panel.hook.dragging = True
+        draft = view_pixels(app)
+        assert "draft" in panel.insertion._fbos  # the draft path ran
+    finally:
+        panel.hook.dragging = False
+        panel.delete(len(panel.objects) - 1)
+        app.set_view("equirect")
+    diff = np.abs(draft - still).max(-1)
+    untouched = (np.abs(still - bare).max(-1) == 0) & (np.abs(draft - bare).max(-1) == 0)
+    assert untouched.mean() > 0.3 and diff[untouched].max() == 0
+    changed = np.abs(still - bare).max(-1) > 8
+    assert changed.sum() > 100
+    assert np.median(diff[changed]) < 12 and diff.mean() < 2  # the same objects and shadows, coarser

@@ -198,6 +198,8 @@ def _bench(app: App, args) -> int:
     app.sync_parts = True  # each part waits for its GL work: the longest frame's parts say where it went
     ok = app.wait_idle(args.timeout)
     app.sync_parts = False
+    if ok:
+        _apply_args(app, args, wait=True)  # the state asked for (layer, view, objects) is what is timed
     during, n_during, parts = app.job_max_frame, app.job_frames, app.job_max_parts
     for _ in range(3):
         app.frame()

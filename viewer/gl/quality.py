@@ -28,12 +28,15 @@ class Quality:
     reuse_lights: bool = False  # a moved object keeps its lights' room positions (reuse_lights)
     own_shadow_bounds: bool = False  # object.frag: its own contact shadow from its bounding sphere
     light_grid: float = 0.0  # metres: light read on this grid, one ray per texel (0: exact, where it is)
+    # the viewer's composite (objects and shadows) at this share of the view's resolution per axis,
+    # over the layer at full resolution (composite_up.frag); exports always run at 1
+    composite_scale: float = 1.0
 
 
 FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
                    peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03,
                    impostor_faces=2048, shadow_faces=1024, proxy_lookups=False, blocker_search=False,
-                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05)
+                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05, composite_scale=0.5)
 # exports at draft quality (phyir insert --quality draft): the light where the object is, no grid steps
 DRAFT_EXPORT = replace(DRAGGING, light_grid=0.0)
