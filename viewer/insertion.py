@@ -66,6 +66,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self._meshes: dict[int, tuple] = {}
         self._objects: dict[int, ObjectGPU] = {}
         self._fbos: dict[str, tuple] = {}
+        self._tile_keys: dict[tuple, tuple] = {}
         self.scene: PanoScene | None = None
         self.field: LightAtPoint | None = None
         self.surface: DepthSurface | None = None
@@ -147,6 +148,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         for st in self._objects.values():
             st.release()
         self._objects.clear()
+        self._tile_keys.clear()  # the atlas tiles were shaded with this scene
 
     def bind_scene(self, prog: moderngl.Program, first_unit: int = 3) -> None:
         """Bind the panorama's layers to units 3-9 and set their uniforms (units 0-2 and 10-15 are the

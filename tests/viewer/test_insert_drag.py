@@ -15,7 +15,7 @@ from phyir.insert import placement
 moderngl = pytest.importorskip("moderngl")
 trimesh = pytest.importorskip("trimesh")
 
-from phyir.insert.objects import PRESETS, SceneObject, _finish  # noqa: E402
+from phyir.insert.objects import PRESETS, SceneObject, _finish, primitive  # noqa: E402
 from phyir.insert.views import EquirectView  # noqa: E402
 from viewer.insertion import DRAGGING, FULL, InsertionRenderer  # noqa: E402
 
@@ -64,6 +64,7 @@ def test_dragging_composite_is_close_to_the_full_per_proxy_one(setup):
     receivers' light by a few percent of the shadow matte, not its shape; the mesh's LOD changes
     the object's pixels by little."""
     r, ball, (view, size) = setup
+    r.forget_tiles()
     old = r.render_view([ball], view, size, OLD_DRAGGING)
     assert r.drawn_faces["impostor"] == 20480
     new = r.render_view([ball], view, size, DRAGGING)
@@ -74,3 +75,23 @@ def test_dragging_composite_is_close_to_the_full_per_proxy_one(setup):
     both = (old["alpha"] == 1) & (new["alpha"] == 1)
     rel = np.abs(new["object"][both] - old["object"][both]).sum() / old["object"][both].sum()
     assert rel < 0.03
+
+
+def test_objects_that_did_not_change_keep_their_tiles(setup):
+    """Dragging one object redraws its impostor and shadow maps only; the frame is the one drawn
+    from scratch, bit for bit."""
+    r, ball, (view, size) = setup
+    other = SceneObject(primitive("cube"), PRESETS["diffuse"], scale=0.2)
+    pl = placement.drop(r.scene, 80.5, 52.5, other.base_offset())
+    other.position, other.rotation, other.support = pl.position, pl.rotation, (pl.contact, pl.normal)
+    r.render_view([ball, other], view, size, DRAGGING)
+    pl = placement.drop(r.scene, 84.5, 52.5, other.base_offset())  # the cube moves, the ball stays
+    other.position, other.rotation, other.support = pl.position, pl.rotation, (pl.contact, pl.normal)
+    moved = r.render_view([ball, other], view, size, DRAGGING)
+    assert r.drawn_faces["impostor"] == len(other.mesh.faces)  # the ball's tile was kept
+    r.forget_tiles()
+    fresh = r.render_view([ball, other], view, size, DRAGGING)
+    assert r.drawn_faces["impostor"] > len(other.mesh.faces)
+    for name in ("composite", "alpha", "shadow"):
+        assert np.array_equal(moved[name], fresh[name]), name
+

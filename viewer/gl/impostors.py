@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import astuple
 
 import moderngl
 import numpy as np
@@ -31,6 +32,7 @@ class ImpostorPasses:
     of it: ``ctx``, ``dfg``, ``program``, ``bind_scene`` and the object states are the renderer's)."""
 
     _fbos: dict[str, tuple]
+    _tile_keys: dict[tuple, tuple]  # (pass, rect) -> what that atlas tile holds (see prepare)
 
     # -- passes -------------------------------------------------------------------------------
     def _atlas(self, name: str, size: tuple[int, int], components: int, depth: bool) -> moderngl.Framebuffer:
@@ -92,6 +94,14 @@ class ImpostorPasses:
                 @ look_at(np.zeros(3), st.centre)
             rect = (x0, 0, n, n)
             x0 += n
+            out.append((st, Tile(vp, rect)))
+            # a tile whose object, lighting, material and camera are as when it was drawn is kept
+            # (objects that don't move while another is dragged cost nothing here)
+            key = (st.key, id(st.lighting), astuple(st.obj.material), quality, fusion, half, id(fbo),
+                   self.use_projection, self.footprint_scale)
+            if self._tile_keys.get(("impostor", rect)) == key:
+                continue
+            self._tile_keys[("impostor", rect)] = key
             fbo.viewport = rect
             ctx.scissor = rect
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
@@ -109,11 +119,14 @@ class ImpostorPasses:
                 ctx.depth_func = "<="
                 self._draw_object(prog, st, vp, mesh)
                 ctx.depth_func = "<"
-            out.append((st, Tile(vp, rect)))
         ctx.scissor = None
         self._draw_shadows([st for st, _ in out], quality)
         ctx.disable(moderngl.DEPTH_TEST)
         return out
+
+    def forget_tiles(self) -> None:
+        """Draw every impostor and shadow-map tile again at the next :meth:`prepare`."""
+        self._tile_keys.clear()
 
     def _object_program(self, material: ObjectMaterial, quality: Quality, fusion: str) -> moderngl.Program:
         """object.frag for this material (SHARP: whether ibl.glsl's mirror branch can be taken: software
@@ -179,6 +192,10 @@ class ImpostorPasses:
         fbo.use()
         for i, (st, (pl, vp, *_)) in enumerate(lights):
             rect = (i * s, 0, s, s)
+            key = (st.key, np.asarray(vp).tobytes(), tuple(np.asarray(pl.position, float)), quality, id(fbo))
+            if self._tile_keys.get(("shadow", rect)) == key:
+                continue  # the same object seen from the same light camera: the map is still there
+            self._tile_keys[("shadow", rect)] = key
             fbo.viewport = rect
             self.ctx.scissor = rect
             fbo.clear(1e30, 1e30, 1e30, 1e30, depth=1.0, viewport=rect)
