@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from phyir.commands import options
+
 HELP = "export a scene as a glTF room (mesh, materials, camera, lights, objects) + its HDR panorama"
 
 
@@ -27,16 +29,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--grid", default=None, metavar="HxW",
         help="mesh resolution: cell rows x columns of the longitude/latitude grid (default 256x512, "
              "or the panorama's size if smaller)")
-    add("--lights", type=int, default=16, metavar="N", help="at most N lights (default 16; 0: none)")
-    add("--fov", type=float, default=60.0, help="the glTF camera's vertical field of view, degrees")
+    add("--lights", type=options.number(0, 64, integer=True), default=16, metavar="N",
+        help="at most N lights (0..64, default 16; 0: none)")
+    add("--fov", type=options.number(1, 179), default=60.0,
+        help="the glTF camera's vertical field of view, degrees (1..179)")
     add("--object", action="append", default=[], metavar="OBJ",
         help="insert sphere, cube, cylinder or a mesh file (repeatable; each with one --at or --position)")
     add("--at", dest="places", action=_Placement, metavar="U,V",
         help="stand the object on the surface seen at pixel column U, row V")
     add("--position", dest="places", action=_Placement, metavar="X,Y,Z",
         help="put the object's centre at this world point (m)")
-    add("--scale", action="append", type=float, default=[], metavar="S",
-        help="object size factor (once for all objects, or once per object; default 1)")
+    add("--scale", action="append", type=options.number(1e-3, 100), default=[], metavar="S",
+        help="object size (once for all objects, or once per object): primitives' radius / half-extent "
+             "in m (default 0.25), a factor for meshes (default 1), as in phyir insert")
     add("--material", action="append", default=[], metavar="M",
         help="diffuse, matte-silver, mirror-silver or B,B,B,R,M (once, or once per object)")
     add("--weights", default=None, metavar="FILE",
@@ -89,7 +94,7 @@ def make_objects(args: argparse.Namespace, scene) -> list:
         raise InputError("--object", f"each --object needs one --at or --position: {n} objects, "
                                      f"{len(places)} placements")
     objects = []
-    scales = _per_object(args.scale, n, "--scale", 1.0)
+    scales = _per_object(args.scale, n, "--scale", None)
     materials = _per_object(args.material, n, "--material", "diffuse")
     for spec, (flag, text), scale, material in zip(args.object, places, scales, materials):
         obj = views.make_object(spec, scale, material)

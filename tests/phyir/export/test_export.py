@@ -159,7 +159,7 @@ def test_the_command_exports_inserted_objects(tmp_path, room):
 
 @pytest.mark.parametrize("extra, flag", [
     (["--grid", "64"], "--grid"), (["--grid", "1x8"], "--grid"), (["--grid", "4096x8192"], "--grid"),
-    (["--lights", "-1"], "--lights"), (["--object", "sphere"], "--object"),
+    (["--object", "sphere"], "--object"),
     (["--object", "sphere", "--at", "1,2", "--scale", "1", "--scale", "2", "--scale", "3"], "--scale"),
 ])
 def test_bad_options_are_one_line_errors(tmp_path, room, extra, flag):
@@ -168,6 +168,19 @@ def test_bad_options_are_one_line_errors(tmp_path, room, extra, flag):
     with pytest.raises(InputError) as e:
         run_export([scene, "--gltf", str(tmp_path / "o.glb"), *extra])
     assert str(e.value).startswith(flag) and "\n" not in str(e.value)
+    assert not os.path.exists(tmp_path / "o.glb")
+
+
+@pytest.mark.parametrize("extra", [["--lights", "-1"], ["--lights", "1e9"], ["--fov", "0"], ["--fov", "nan"],
+                                   ["--object", "sphere", "--at", "1,2", "--scale", "inf"]])
+def test_bad_numbers_are_refused_in_one_line_by_the_command(tmp_path, room, extra, capsys):
+    from phyir.cli import main
+
+    scene = str(tmp_path / "room.exr")
+    save_scene(room, scene)
+    assert main(["export", scene, "--gltf", str(tmp_path / "o.glb"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {extra[-2]}" in err[0]
     assert not os.path.exists(tmp_path / "o.glb")
 
 
