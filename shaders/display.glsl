@@ -14,10 +14,15 @@ uniform float offset;         // ... then offset is added (HDR only)
 uniform vec2 range;           // scalar: [lo, hi] mapped onto the colour map; false colour: log2 range
 uniform sampler2D cmap;       // 256x1 colour map (scalar layers, false colour)
 uniform vec3 background;
+uniform int channel;          // HDR and colour layers: 0 RGB, 1 R, 2 G, 3 B, 4 luminance (shown as grey)
 
 // s.rgb = linear value, s.a = panorama coverage (background where 0)
 vec4 display_colour(vec4 s) {
     vec3 c = s.rgb;
+#if KIND <= 1
+    if (channel == 4) c = vec3(luminance(c));
+    else if (channel > 0) c = vec3(c[channel - 1]);
+#endif
 #if KIND == 0
     c = c * exp2(exposure) + offset;
 #if TONEMAP == 1

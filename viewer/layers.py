@@ -119,3 +119,39 @@ def probe_block(u: float, v: float, size: tuple[int, int], grid: tuple[int, int]
     """Index (a, b) of the probe block containing (u, v)."""
     (H, W), (Hp, Wp) = size, grid
     return (min(Hp - 1, max(0, int(v * Hp / H))), int(u * Wp / W) % Wp)
+
+
+HIST_BINS = 64
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def histogram(a: np.ndarray, kind: str, channel: str = "rgb", bins: int = HIST_BINS
+              ) -> tuple[np.ndarray, float, float, str] | None:
+    """The side panel's histogram of a layer ``a [h, w, C]``: counts ``[bins]`` (float32) over
+    ``[lo, hi]`` and the axis' unit.  HDR: log2 of the luminance (or of the one ``channel``) of the
+    positive pixels, over their 0.1-99.9 percentiles (EV); colour: the luminance (or channel) over
+    [0, 1]; scalar: the value over its finite range; normals: None (no one-number pixel value)."""
+    if kind == "normal":
+        return None
+    x = a[..., :3] if a.ndim == 3 and a.shape[-1] >= 3 else a.reshape(*a.shape[:2], -1)[..., :1]
+    if x.shape[-1] == 3:
+        pick = {"r": 0, "g": 1, "b": 2}.get(channel)
+        x = x[..., pick] if pick is not None else x @ LUMA
+    else:
+        x = x[..., 0]
+    x = x[np.isfinite(x)].astype(np.float64)
+    if kind == "hdr":
+        x = np.log2(x[x > 0])
+        unit = "log2 (EV)"
+        if x.size == 0:
+            return np.zeros(bins, np.float32), 0.0, 1.0, unit
+        lo, hi = np.percentile(x, [0.1, 99.9])
+    elif kind == "colour":
+        lo, hi, unit = 0.0, 1.0, "value"
+    else:
+        lo, hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
+        unit = "value"
+    hi = hi if hi > lo else lo + 1e-6
+    counts, _ = np.histogram(np.clip(x, lo, hi), bins=bins, range=(lo, hi))
+    return counts.astype(np.float32), float(lo), float(hi), unit
+

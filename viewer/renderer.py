@@ -24,6 +24,7 @@ from viewer.gl.programs import ProgramCache, set_uniform, set_view
 
 KINDS = {"hdr": 0, "colour": 1, "normal": 2, "scalar": 3}
 TONEMAPS = ("srgb", "aces", "false")
+CHANNELS = ("rgb", "r", "g", "b", "luminance")  # what colour layers show (display.glsl's `channel`)
 COLORMAPS = ("viridis", "magma", "inferno", "turbo", "gray")
 FALSE_COLOUR_MAP = "turbo"
 MAX_MARKERS = 32  # shaders/markers.frag
@@ -40,6 +41,7 @@ class Display:
     colormap: str = "viridis"               # scalar layers
     range: tuple[float, float] = (0.0, 1.0)  # scalar: values mapped to [0, 1] of the colour map
     false_range: tuple[float, float] = (-8.0, 8.0)  # false colour: log2 luminance range
+    channel: str = "rgb"                    # hdr and colour layers: one of CHANNELS (as grey)
 
 
 @dataclass
@@ -299,6 +301,7 @@ class Renderer:
         self._cmap(d).use(1)
         set_uniform(prog, "cmap", 1)
         set_uniform(prog, "background", tuple(float(c) for c in frame.background))
+        set_uniform(prog, "channel", CHANNELS.index(d.channel))
 
     def _cmap(self, d: Display) -> moderngl.Texture:
         """The colour map a display samples (the false-colour one for false-colour HDR)."""

@@ -17,6 +17,7 @@ from support.scenes import box_room  # noqa: E402
 from support.viewer import FakeModel, cheap_render  # noqa: E402
 
 from phyir.color import linear_to_srgb  # noqa: E402
+from phyir.errors import PhyIRError  # noqa: E402
 from phyir.scene import PanoScene  # noqa: E402
 
 pytestmark = pytest.mark.gl
@@ -277,6 +278,49 @@ def test_moving_an_object_around_the_camera_warns_once(app):
     assert len([m for m in app.messages if "camera is inside" in m.text]) == len(warnings) == 1
     app.objects.delete(0)
     assert app.objects_problem is None
+
+
+def test_single_channel_views_show_one_channel_or_the_luminance_as_grey(app):
+    from phyir.color import srgb_to_linear
+
+    app.open(box_room(32, 64, variant="viewer"), name="room")
+    assert app.wait_idle(30)
+    x, y, w, h = app.view_rect()
+    try:
+        for layer in ("image", "albedo"):
+            app.set_layer(layer)
+            app.set_channel("rgb")
+            rgb = app.screenshot()[y : y + h, x : x + w].astype(int)
+            inside = rgb.std(-1) > 2  # panorama pixels (coloured), not the grey background
+            assert inside.mean() > 0.3
+            for k, name in enumerate(("r", "g", "b")):
+                app.set_channel(name)
+                one = app.screenshot()[y : y + h, x : x + w].astype(int)
+                assert (one.max(-1) - one.min(-1))[inside].max() <= 1  # grey
+                assert np.abs(one[..., 0] - rgb[..., k])[inside].max() <= 1  # the channel's value
+            app.set_channel("luminance")
+            lum = app.screenshot()[y : y + h, x : x + w].astype(float)
+            want = linear_to_srgb(srgb_to_linear(rgb / 255.0) @ np.array([0.2126, 0.7152, 0.0722])) * 255
+            err = np.abs(lum[..., 1] - want)[inside]  # (want is from 8-bit channels: dark ones are coarse)
+            assert np.median(err) < 1 and np.percentile(err, 99) < 4
+    finally:
+        app.set_channel("rgb")
+    with pytest.raises(PhyIRError, match="unknown channel"):
+        app.set_channel("alpha")
+    # the side panel's histogram of the shown layer (log2 for HDR), drawn for each kind of layer
+    app.gui.histogram_open = True
+    try:
+        for layer in ("image", "albedo", "depth", "normal"):
+            app.set_layer(layer)
+            app.frame()
+            want = "normal" if layer == "normal" else layer
+            assert app.gui._hist_key[1] == want and (app.gui._hist is None) == (layer == "normal")
+        app.set_layer("image")
+        app.frame()
+        counts, lo, hi, unit = app.gui._hist
+        assert unit.startswith("log2") and counts.sum() > 0.99 * np.prod(app.size) and lo < hi
+    finally:
+        app.gui.histogram_open = None
 
 
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):

@@ -15,7 +15,7 @@ from viewer.app.common import gl_current
 from viewer.app.core import App
 from viewer.gl import window as surfaces
 from viewer.layers import LAYERS
-from viewer.renderer import COLORMAPS, TONEMAPS
+from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -74,6 +74,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--exposure", type=_bounded(-64, 64, "--exposure"), help="exposure in EV")
     p.add_argument("--tonemap", choices=TONEMAPS, help="tone map of HDR layers")
     p.add_argument("--colormap", choices=COLORMAPS, help="colour map of scalar layers")
+    p.add_argument("--channel", choices=CHANNELS,
+                   help="HDR and colour layers: one channel (or the luminance) as grey")
+    p.add_argument("--histogram", action="store_true", help="open the side panel's histogram of the layer")
     p.add_argument("--compare", action="store_true",
                    help="treat the file's layers as ground truth: predict all layers and compare "
                         "(automatic for complete synthetic scenes)")
@@ -176,6 +179,10 @@ def _apply_args(app: App, args, wait: bool) -> None:
         app.set_exposure(args.exposure)
     if args.tonemap:
         app.set_tonemap(args.tonemap)
+    if args.channel:
+        app.set_channel(args.channel)
+    if args.histogram and app.gui is not None:
+        app.gui.histogram_open = True
     if args.colormap:
         for name in app.scalar:
             app.set_colormap(args.colormap, name)

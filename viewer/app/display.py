@@ -11,7 +11,7 @@ import numpy as np
 from phyir.errors import PhyIRError
 from viewer.app.common import BACKGROUND, NEAREST_ZOOM, UPLOAD_BUDGET_S, ScalarDisplay
 from viewer.layers import LAYERS, SPECS, auto_range
-from viewer.renderer import COLORMAPS, TONEMAPS, Display, Frame, Marker
+from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS, Display, Frame, Marker
 
 
 class DisplaySettings:
@@ -66,8 +66,15 @@ class DisplaySettings:
             return Display(kind="scalar", colormap=sd.colormap, range=sd.range)
         if spec.kind == "hdr":
             return Display(kind="hdr", tonemap=self.hdr.tonemap, exposure=self.hdr.exposure,
-                           offset=self.hdr.offset, false_range=self.hdr.false_range)
-        return Display(kind=spec.kind)
+                           offset=self.hdr.offset, false_range=self.hdr.false_range, channel=self.hdr.channel)
+        return Display(kind=spec.kind, channel=self.hdr.channel if spec.kind == "colour" else "rgb")
+
+    def set_channel(self, name: str) -> None:
+        """What HDR and colour layers show: all channels, one of R, G, B, or the luminance (as grey)."""
+        if name not in CHANNELS:
+            raise PhyIRError(f"unknown channel {name!r} (choose from {', '.join(CHANNELS)})")
+        self.hdr.channel = name
+        self._redraw = max(self._redraw, 2)
 
     def set_exposure(self, ev: float) -> None:
         self.hdr.exposure = float(ev)

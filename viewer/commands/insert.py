@@ -73,7 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="PNG/GIF exposure (-64..64; default: median luminance -> 0.18)")
     add("--weights", default=None, metavar="FILE",
         help="model weights for panoramas without depth/probes (default: the shipped ones)")
-    add("-o", "--out", required=True, metavar="OUT", help="OUT.exr (passes + OUT.png) or OUT.png")
+    add("-o", "--out", required=True, metavar="OUT", type=options.path,
+        help="OUT.exr (passes + OUT.png) or OUT.png")
 
 
 def _warn(problem: str | None, what: str = "") -> None:
@@ -107,6 +108,20 @@ def _placements(obj, scene, args) -> tuple[str, list[tuple]]:
     return option, out
 
 
+def _check_outputs_spare_the_input(args: argparse.Namespace) -> None:
+    """[issue 22] ``-o`` (or the PNG beside an OUT.exr) must not be the input: the passes would
+    replace the scene or panorama they were rendered from."""
+    import os
+
+    from phyir.errors import InputError
+
+    stem, ext = os.path.splitext(args.out)
+    outs = {args.out, stem + ".png"} if ext.lower() == ".exr" else {args.out}
+    for out in outs:
+        if os.path.exists(out) and os.path.exists(args.input) and os.path.samefile(out, args.input):
+            raise InputError("-o", f"{out} is the input {args.input}: choose another output name")
+
+
 def run(args: argparse.Namespace) -> int:
     from phyir.insert import placement, views  # GL and trimesh are imported only here
     from viewer.gl.quality import DRAFT_EXPORT
@@ -114,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
     from viewer.insertion import FULL, InsertionRenderer
 
     t0 = time.perf_counter()
+    _check_outputs_spare_the_input(args)
     scene = views.load_insert_scene(args.input, weights=args.weights)
     obj = views.make_object(args.object, args.scale, args.material)
     option, poses = _placements(obj, scene, args)

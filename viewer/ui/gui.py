@@ -65,6 +65,9 @@ class Gui(MenuBar, ViewInput, SidePanel, StatusBar):
         self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
         self.quit_requested = False
         self.scroll_to_pin: int | None = None
+        self._hist_key: tuple | None = None  # the side panel's histogram: what it was computed for
+        self._hist = None
+        self.histogram_open: bool | None = None  # force the Histogram section open/closed (None: the user's)
 
     # -- frame --------------------------------------------------------------------------------
     @property

@@ -4,7 +4,7 @@ zoomed in) and the keyboard shortcuts."""
 from __future__ import annotations
 
 from viewer.layers import LAYERS
-from viewer.renderer import COLORMAPS, TONEMAPS
+from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS
 from viewer.ui.widgets import FLAGS_FIXED, col32, fmt_number, imgui
 
 VALUES_ZOOM = 56.0     # logical px per panorama pixel above which pixel values are printed
@@ -116,6 +116,8 @@ class ViewInput:
         if pressed(K.r, False):
             app.set_exposure(0.0)
             app.set_offset(0.0)
+        if pressed(K.x, False):
+            app.set_channel(_cycle(CHANNELS, app.hdr.channel, -1 if shift else 1))
         if pressed(K.t, False):
             app.set_tonemap(_cycle(TONEMAPS, app.hdr.tonemap, -1 if shift else 1))
         if pressed(K.c, False) and app.layer in app.scalar:

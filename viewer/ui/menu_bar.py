@@ -154,6 +154,7 @@ HELP = (
     ("Backspace", "remove the last probe"),
     ("Esc", "dismiss the error / cancel the model"),
     ("Ctrl+O", "open a file (or drop it on the window)"),
+    ("X / Shift+X", "channel: RGB, R, G, B, luminance"),
     ("F12", "save a screenshot next to the file"),
     ("H", "this help"),
 )

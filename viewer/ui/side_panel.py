@@ -10,8 +10,8 @@ import numpy as np
 import torch
 
 from phyir import pano
-from viewer.layers import KEYS, LAYERS, SPECS
-from viewer.renderer import COLORMAPS, TONEMAPS, colormap_lut
+from viewer.layers import KEYS, LAYERS, SPECS, histogram
+from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS, colormap_lut
 from viewer.ui.widgets import FLAGS_FIXED, LEVEL_COLOURS, PANEL_WIDTH, col32, fmt_number, fmt_value, imgui
 
 
@@ -38,6 +38,10 @@ class SidePanel:
             self._layers()
         if imgui.collapsing_header("Display", imgui.TreeNodeFlags_.default_open):
             self._display()
+        if self.histogram_open is not None:  # phyir-view --histogram, scripts: open (or close) it
+            imgui.set_next_item_open(self.histogram_open, imgui.Cond_.always)
+        if imgui.collapsing_header("Histogram"):
+            self._histogram()
         if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
             self._view_controls()
         if imgui.collapsing_header("Read-out", imgui.TreeNodeFlags_.default_open):
@@ -90,9 +94,12 @@ class SidePanel:
                                 ["sRGB", "ACES", "false colour"])
             if ch:
                 app.set_tonemap(TONEMAPS[i])
+            self._channel_combo()
             if app.hdr.tonemap == "false":
                 lo, hi = app.hdr.false_range
                 self._colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV")
+        elif spec.kind == "colour":
+            self._channel_combo()
         elif spec.kind == "scalar":
             sd = app.scalar[app.layer]
             ch, i = imgui.combo("colour map (C)", COLORMAPS.index(sd.colormap), list(COLORMAPS))
@@ -113,6 +120,36 @@ class SidePanel:
                 else "base colour shown as sRGB"
             imgui.text_disabled(note)
             imgui.pop_text_wrap_pos()
+
+    def _histogram(self) -> None:
+        """The shown layer's histogram (log2 for HDR) and where the display puts white / its range."""
+        app = self.app
+        arrays = app.shown_arrays
+        if app.layer not in arrays:
+            imgui.text_disabled("the layer is not there yet")
+            return
+        spec = SPECS[app.layer]
+        key = (id(arrays[app.layer]), app.layer, app.hdr.channel)
+        if getattr(self, "_hist_key", None) != key:
+            self._hist_key, self._hist = key, histogram(arrays[app.layer], spec.kind, app.hdr.channel)
+        if self._hist is None:
+            imgui.text_disabled("no histogram for normals")
+            return
+        counts, lo, hi, unit = self._hist
+        imgui.plot_histogram("##hist", counts, graph_size=imgui.ImVec2(-1, 70 * self.scale))
+        imgui.text(f"{unit}: {fmt_number(lo)} .. {fmt_number(hi)}")
+        if spec.kind == "hdr" and app.hdr.tonemap != "false":
+            imgui.text(f"white at {0.0 - app.hdr.exposure:+.1f} EV (exposure {app.hdr.exposure:+.1f})")
+        elif spec.kind == "scalar":
+            r = app.scalar[app.layer].range
+            imgui.text(f"colour map over {fmt_number(r[0])} .. {fmt_number(r[1])}")
+
+    def _channel_combo(self) -> None:
+        app = self.app
+        names = ["RGB", "R", "G", "B", "luminance"]
+        ch, i = imgui.combo("channel (X)", CHANNELS.index(app.hdr.channel), names)
+        if ch:
+            app.set_channel(CHANNELS[i])
 
     def _colour_bar(self, name: str, lo: str, hi: str) -> None:
         if name not in self._lut_cache:
