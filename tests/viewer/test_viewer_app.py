@@ -323,6 +323,38 @@ def test_single_channel_views_show_one_channel_or_the_luminance_as_grey(app):
         app.gui.histogram_open = None
 
 
+def test_a_watched_file_is_reloaded_when_it_changes_on_disk(app, tmp_path):
+    import os
+
+    from phyir.io import save_scene
+
+    path = tmp_path / "room.exr"
+    room = box_room(32, 64, variant="viewer")
+    save_scene(room, path)
+    app.open(path)
+    assert app.wait_idle(30) and app.error is None
+    app.watch = True
+    try:
+        assert not app.check_file_changed(now=1e9)  # unchanged: nothing to do
+        brighter = PanoScene(image=room.image * 4, depth=room.depth, normal=room.normal, albedo=room.albedo,
+                             roughness=room.roughness, metallic=room.metallic, probes=room.probes)
+        save_scene(brighter, path)
+        st = os.stat(path)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # a new time even on coarse clocks
+        assert not app.check_file_changed(now=1e9 + 0.5)  # checked at most once a second
+        assert app.check_file_changed(now=1e9 + 2)
+        assert app.wait_idle(30) and app.error is None
+        assert np.allclose(app.arrays["image"], brighter.image.permute(1, 2, 0).numpy())
+        assert any("changed on disk: reloading" in m.text for m in app.messages)
+        assert not app.check_file_changed(now=1e9 + 4)  # the reloaded file is the new reference
+    finally:
+        app.watch = False
+    app.open(box_room(32, 64, variant="viewer"))
+    assert app.wait_idle(30)
+    with pytest.raises(PhyIRError, match="nothing to reload"):
+        app.reload()
+
+
 def test_layers_in_the_file_show_at_once_and_are_not_recomputed(app):
     truth = box_room(64, 128, variant="viewer")
     partial = PanoScene(image=truth.image, depth=truth.depth, normal=truth.normal)

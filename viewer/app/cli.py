@@ -76,6 +76,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--colormap", choices=COLORMAPS, help="colour map of scalar layers")
     p.add_argument("--channel", choices=CHANNELS,
                    help="HDR and colour layers: one channel (or the luminance) as grey")
+    p.add_argument("--watch", action="store_true", help="reload the file whenever it changes on disk")
     p.add_argument("--histogram", action="store_true", help="open the side panel's histogram of the layer")
     p.add_argument("--compare", action="store_true",
                    help="treat the file's layers as ground truth: predict all layers and compare "
@@ -181,6 +182,7 @@ def _apply_args(app: App, args, wait: bool) -> None:
         app.set_tonemap(args.tonemap)
     if args.channel:
         app.set_channel(args.channel)
+    app.watch = bool(args.watch)
     if args.histogram and app.gui is not None:
         app.gui.histogram_open = True
     if args.colormap:

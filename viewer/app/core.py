@@ -70,6 +70,9 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
             self.renderer.warm_up(self.surface.target())
         self.title = title
         self.last_capture: np.ndarray | None = None
+        self.watch = False  # reload the file when it changes on disk (phyir-view --watch)
+        self._watch_stamp: tuple | None = None  # (mtime, size) of the file as loaded
+        self._watch_last = 0.0
         self._opening = None  # the file being opened (viewer.app.files), until it loads or fails
         self._screenshot_request: str | None = None  # F12 / the menu: saved after the frame
         model_kw = {k: v for k, v in (("weights", weights), ("device", device)) if v is not None}

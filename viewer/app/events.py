@@ -14,6 +14,7 @@ class WorkerEvents:
 
     def poll(self) -> bool:
         """Apply the worker's events; True if anything changed."""
+        self.check_file_changed()
         events = self.worker.poll()
         for event in events:
             self._handlers[type(event)](self, event)
@@ -23,6 +24,7 @@ class WorkerEvents:
         self._begin_opened()
         self.scene = loaded.scene
         self.path, self.name = loaded.path, loaded.name
+        self._watch_stamp = self._file_stamp()
         self.arrays = dict(loaded.arrays)
         self._queue_upload("pred", loaded.arrays)
         self._auto_ranges(loaded.ranges)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from phyir.errors import PhyIRError
 from phyir.scene import PanoScene
 from viewer.app.common import gl_current
 from viewer.layers import auto_ranges, scene_arrays
@@ -67,10 +68,38 @@ class FileActions:
         """The name of the file being opened (until it has loaded or failed), else None."""
         return self._opening.name if self._opening is not None else None
 
+    def reload(self) -> None:
+        """Open the current file again (File > Reload, Ctrl+R; automatic with ``watch``)."""
+        if self.path is None:
+            raise PhyIRError("nothing to reload: the scene did not come from a file")
+        self.open(self.path)
+
+    def _file_stamp(self) -> tuple | None:
+        try:
+            st = os.stat(self.path) if self.path else None
+        except OSError:
+            return None
+        return None if st is None else (st.st_mtime_ns, st.st_size)
+
+    def check_file_changed(self, now: float | None = None) -> bool:
+        """With ``watch`` on, at most once a second: reload the file when it changed on disk (a
+        writer that is still writing is caught by the next check); True if a reload started."""
+        now = time.monotonic() if now is None else now
+        if not self.watch or self.busy or self.path is None or now - self._watch_last < 1.0:
+            return False
+        self._watch_last = now
+        stamp = self._file_stamp()
+        if stamp is None or stamp == self._watch_stamp:
+            return False
+        self.note("info", f"{self.name} changed on disk: reloading")
+        self.reload()
+        return True
+
     def _begin_opened(self) -> None:
         """The file being opened has loaded: the previous scene goes, the given ground truth comes."""
         opening, self._opening = self._opening, None
         self._clear()
+        self._watch_stamp = None  # set from the file once its layers are in (_on_loaded)
         if opening is not None and opening.gt is not None:
             self._set_gt(opening.gt)
 
@@ -137,7 +166,6 @@ class FileActions:
     def export_gltf(self, path: str | os.PathLike | None = None):
         """The room, its lights, the inserted objects and the perspective view's camera as
         glTF (``phyir.export``: PATH.glb + PATH_env.exr, default next to the file); a note says where."""
-        from phyir.errors import PhyIRError
         from phyir.export.bundle import export_gltf
 
         sc = self.objects.scene()

@@ -104,6 +104,8 @@ class ViewInput:
                 self.open_dialog()
             if pressed(K.q):
                 self._quit()
+            if pressed(K.r, False) and app.path is not None:
+                app.reload()
             return
         digits = [K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9, K._0, K.minus]
         for name, key in zip(LAYERS, digits):

@@ -30,6 +30,9 @@ class MenuBar:
                     if imgui.menu_item_simple(f):
                         app.open(f)
                 imgui.end_menu()
+            if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.path is not None):
+                app.reload()
+            _, app.watch = imgui.menu_item("Reload when the file changes", "", app.watch)
             imgui.separator()
             if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
                 self._save_screenshot()
@@ -155,6 +158,7 @@ HELP = (
     ("Esc", "dismiss the error / cancel the model"),
     ("Ctrl+O", "open a file (or drop it on the window)"),
     ("X / Shift+X", "channel: RGB, R, G, B, luminance"),
+    ("Ctrl+R", "reload the file (File menu: also whenever it changes)"),
     ("F12", "save a screenshot next to the file"),
     ("H", "this help"),
 )
