@@ -1,0 +1,74 @@
+"""Where a dragging frame of phyir-view goes with objects in the scene: the insertion's ``prepare``
+(lighting, impostors, shadow maps) and its composite passes, each ended by ``ctx.finish()``, while
+the first object is dragged in the perspective view (``viewer.app.cli._bench_drag``).
+
+    .venv/bin/python benchmarks/viewer_drag_parts.py [SCENE] [--mesh vase.glb] [--frames 30]
+
+Default: the demo scene with two spheres and a 20k-triangle vase (benchmarks/insert_gallery.vase).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", nargs="?", default=str(REPO / "phyir/assets/demo.exr"))
+    ap.add_argument("--mesh", help="the third object (default: a 20k-triangle vase, made here)")
+    ap.add_argument("--frames", type=int, default=30)
+    args = ap.parse_args(argv)
+    from viewer.gl import window as surfaces
+
+    surfaces.prefer_egl()
+    from viewer.app.cli import _apply_args, _bench_drag, parser
+    from viewer.app.core import App
+
+    mesh = args.mesh
+    if mesh is None:
+        sys.path.insert(0, str(REPO / "benchmarks"))
+        from insert_gallery import vase
+
+        mesh = str(Path(tempfile.mkdtemp()) / "vase.glb")
+        vase(mesh)
+    opts = parser().parse_args([args.scene, "--no-model", "--object", "sphere", "--at", "560,400",
+                                "--object", "sphere", "--at", "470,390", "--material", "matte-silver",
+                                "--object", mesh, "--at", "520,380"])
+    app = App((1394, 556), headless=True, recent=False, run_model=False)
+    try:
+        app.open(opts.path)
+        app.wait_idle(120)
+        _apply_args(app, opts, wait=True)
+        ins = app.objects.insertion
+        times = {"prepare": [], "composite passes": []}
+
+        def timed(name, fn):
+            def run(*a, **k):
+                ins.ctx.finish()
+                t = time.perf_counter()
+                out = fn(*a, **k)
+                ins.ctx.finish()
+                times[name].append(time.perf_counter() - t)
+                return out
+            return run
+
+        ins.prepare = timed("prepare", ins.prepare)
+        ins.draw_fullscreen = timed("composite passes", ins.draw_fullscreen)
+        _bench_drag(app, args.frames)
+        for name, t in times.items():
+            print(f"{name}: median {1000 * np.median(t):.1f} ms per call over {len(t)} calls")
+    finally:
+        app.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
