@@ -1,6 +1,6 @@
 """Where a dragging frame of phyir-view goes with objects in the scene: the insertion's ``prepare``
 (lighting, impostors, shadow maps) and its composite passes, each ended by ``ctx.finish()``, while
-the first object is dragged in the perspective view (``viewer.app.cli._bench_drag``).
+the first object is dragged in the perspective view (``viewer.app.cli.bench_drag``).
 
     .venv/bin/python benchmarks/viewer_drag_parts.py [SCENE] [--mesh vase.glb] [--frames 30]
 
@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     from viewer.gl import window as surfaces
 
     surfaces.prefer_egl()
-    from viewer.app.cli import _apply_args, _bench_drag, parser
+    from viewer.app.cli import apply_args, bench_drag, parser
     from viewer.app.core import App
 
     mesh = args.mesh
@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         app.open(opts.path)
         app.wait_idle(120)
-        _apply_args(app, opts, wait=True)
+        apply_args(app, opts, wait=True)
         ins = app.objects.insertion
         times = {"prepare": [], "composite passes": []}
 
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
 
         ins.prepare = timed("prepare", ins.prepare)
         ins.draw_fullscreen = timed("composite passes", ins.draw_fullscreen)
-        _bench_drag(app, args.frames)
+        bench_drag(app, args.frames)
         for name, t in times.items():
             print(f"{name}: median {1000 * np.median(t):.1f} ms per call over {len(t)} calls")
     finally:

@@ -43,14 +43,24 @@ def command_modules() -> dict[str, str]:
 
 
 class Terminated(KeyboardInterrupt):
-    """[issue 22, class 4] SIGTERM, raised like Ctrl-C's KeyboardInterrupt so the same cleanup
-    (atomic writes removing their temporaries, training's checkpoint) runs; ``phyir`` exits 143."""
+    """[issue 22, class 4] SIGTERM (or SIGHUP: the terminal closed), raised like Ctrl-C's
+    KeyboardInterrupt so the same cleanup (atomic writes removing their temporaries, training's
+    checkpoint) runs; ``phyir`` exits 128 + the signal's number (143, 129)."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+# the signals that end a command through Terminated (SIGINT is Python's KeyboardInterrupt)
+TERMINATING = (signal.SIGTERM,) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
 
 
 @contextlib.contextmanager
 def sigterm_raises() -> Iterator[None]:
-    """While the block runs (in the main thread), SIGTERM raises :class:`Terminated`; a process
-    forked inside it (a DataLoader worker) keeps the default: it just ends."""
+    """While the block runs (in the main thread), SIGTERM and SIGHUP raise :class:`Terminated`; a
+    process forked inside it (a DataLoader worker) keeps the default: it just ends.  A SIGHUP that
+    was ignored when the command started (``nohup``) stays ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -60,13 +70,17 @@ def sigterm_raises() -> Iterator[None]:
         if os.getpid() != owner:
             signal.signal(signum, signal.SIG_DFL)
             signal.raise_signal(signum)
-        raise Terminated()
+        raise Terminated(signum)
 
-    saved = signal.signal(signal.SIGTERM, handler)
+    saved = {s: signal.getsignal(s) for s in TERMINATING}
+    for s, old in saved.items():
+        if old != signal.SIG_IGN:
+            signal.signal(s, handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL if saved is None else saved)
+        for s, old in saved.items():
+            signal.signal(s, signal.SIG_DFL if old is None else old)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -122,6 +136,23 @@ def check_requirements(command: str, requires: tuple[str, str, tuple[str, ...]] 
                          f"pip install 'phyir[{extra}]'")
 
 
+@contextlib.contextmanager
+def one_line_warnings(command: str) -> Iterator[None]:
+    """[issue 22, class 9] Warnings (the loaders' repairs, ...) as ``phyir <cmd>: warning: <message>``
+    on one line, not Python's ``file.py:244: InputWarning: ...`` followed by a line of source."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"phyir {command}: warning: {shown(str(message))}", file=sys.stderr if file is None else file)
+
+    saved = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = saved
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -132,18 +163,23 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with sigterm_raises():
+        with sigterm_raises(), one_line_warnings(args.command):
             check_requirements(args.command, args._requires)
             return int(args._run(args) or 0)
     except PhyIRError as e:
         print(f"phyir {args.command}: error: {shown(str(e))}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # stdout's reader went away (`phyir info ... | head`): end quietly
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + 13  # as if killed by SIGPIPE, the shell's convention
     except OSError as e:  # the file system's refusals (read-only, full, no permission): one line
         print(f"phyir {args.command}: error: {shown(str(os_error(None, e)))}", file=sys.stderr)
         return 2
-    except Terminated:
-        print(f"phyir {args.command}: terminated", file=sys.stderr)
-        return 143
+    except Terminated as e:
+        how = "hung up (SIGHUP)" if e.signum == getattr(signal, "SIGHUP", None) else "terminated"
+        print(f"phyir {args.command}: {how}", file=sys.stderr)
+        return 128 + e.signum
     except KeyboardInterrupt:
         print(f"phyir {args.command}: interrupted", file=sys.stderr)
         return 130

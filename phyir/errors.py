@@ -5,8 +5,11 @@ from __future__ import annotations
 import os
 import re
 
-# C0 and C1 control characters, DEL, and the lone surrogates os.fsdecode makes of undecodable bytes
-_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+# C0 and C1 control characters, DEL, the lone surrogates os.fsdecode makes of undecodable bytes, and
+# the invisible format characters that change what a terminal shows: line / paragraph separators,
+# bidirectional overrides ("evil\u202egpj.hdr" displays as "evilrdh.jpg"), zero-width characters
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff\u061c\u200b-\u200f\u2028-\u202e"
+                          "\u2060-\u2069\ufeff]")
 
 
 def _escape(m: re.Match) -> str:
@@ -35,7 +38,8 @@ class InputError(PhyIRError, ValueError):
     def __init__(self, path: str | os.PathLike | None, problem: str):
         self.path = None if path is None else os.fspath(path)
         self.problem = problem
-        super().__init__(problem if path is None else f"{shown(self.path)}: {problem}")
+        name = shown(self.path) or "''"  # an empty name is shown as '' (not ": no such file")
+        super().__init__(problem if path is None else f"{name}: {problem}")
 
 
 def os_error(path: str | os.PathLike | None, e: OSError) -> InputError:

@@ -100,7 +100,7 @@ def load_cached_model(weights: str | os.PathLike | None = None, device: str | to
             net_size = check_net_size(tuple(int(x) for x in str(res).split("x")), "data.resolution")
         except KeyError:
             pass  # no recorded resolution: the default
-        except (TypeError, ValueError) as e:  # (json.JSONDecodeError is a ValueError)
+        except (TypeError, ValueError, RecursionError) as e:  # (json.JSONDecodeError is a ValueError)
             import warnings
 
             warnings.warn(f"{side}: unreadable weights sidecar ({e}); assuming the network size "

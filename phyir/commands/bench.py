@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=options.number(1, 1024, integer=True), default=None, metavar="N",
                         help="torch CPU threads during the run (default: torch's; 1 = fair CPU times "
                              "on a shared machine)")
-    parser.add_argument("-o", "--out", default="benchmarks/results", metavar="DIR",
+    parser.add_argument("-o", "--out", default="benchmarks/results", metavar="DIR", type=options.path,
                         help="output folder for <target>.json/.png and report.md/.json "
                              "(default benchmarks/results)")
 

@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", metavar="DIR", help="synthetic dataset: run the model on --split")
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
     parser.add_argument("--weights", metavar="FILE", help="weights for --data (default: the shipped model)")
-    parser.add_argument("--device", help="cpu, cuda, ... (default: cuda when available)")
+    parser.add_argument("--device", type=options.device, help="cpu, cuda, ... (default: cuda when available)")
     parser.add_argument("--limit", type=options.number(1, 10**9, integer=True),
                         help="evaluate the first N scenes only")
     parser.add_argument("--probes-per-scene", type=options.number(1, 10**6, integer=True), default=256,
@@ -35,12 +35,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=options.number(1, 65536, integer=True), default=64,
                         help="samples per pixel of the relit spheres")
     parser.add_argument("--seed", type=options.number(0, 2**63 - 1, integer=True), default=0)
-    parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
-    parser.add_argument("--markdown", metavar="FILE", help="write the Markdown tables (also printed)")
+    parser.add_argument("--json", metavar="FILE", type=options.path, help="write the results as JSON")
+    parser.add_argument("--markdown", metavar="FILE", type=options.path,
+                        help="write the Markdown tables (also printed)")
     parser.add_argument("--real", metavar="DIR",
                         help="real panoramas without ground truth (.hdr/.exr/.png/.jpg): geometry checks, "
                              "invariances and lighting at a point (phyir.evaluation.real)")
-    parser.add_argument("--sheet", metavar="PNG", help="--real: write a contact sheet of the rooms")
+    parser.add_argument("--sheet", metavar="PNG", type=options.path,
+                        help="--real: write a contact sheet of the rooms")
     parser.add_argument("--lighting", choices=("projection", "lnet"),
                         help="--real: predict's lighting method for the probe grid (default: predict's)")
 
@@ -83,8 +85,10 @@ def margin_table(name: str, r: dict[str, float]) -> str:
 
 
 def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:
-    from phyir.errors import InputError
-    from phyir.io import folder_files
+    import os
+
+    from phyir.errors import InputError, shown
+    from phyir.io import check_input, folder_files
 
     files: list[Path] = []
     for s in preds:
@@ -95,8 +99,10 @@ def _pairs(preds: list[str], gt_dir: Path) -> list[tuple[Path, Path]]:
     pairs = []
     for f in files:
         g = gt_dir / f.name
-        if not g.is_file():
-            raise InputError(g, f"no ground truth for prediction {f}")
+        if os.path.lexists(g):  # [issue 22] a FIFO or a folder there is said as such
+            check_input(g)
+        else:
+            raise InputError(g, f"no ground truth for prediction {shown(f)}")
         pairs.append((f, g))
     return pairs
 

@@ -70,7 +70,8 @@ def check_output(path: str, flag: str, ext: str) -> None:
         raise InputError(flag, f"{path}: expected a {ext} file name")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
-        raise InputError(flag, f"{path}: the folder {folder} does not exist")
+        problem = "is not a folder" if os.path.exists(folder) else "does not exist"
+        raise InputError(flag, f"{path}: the folder {folder} {problem}")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise InputError(flag, f"{path}: the folder {folder} is not writable")
 
@@ -86,7 +87,7 @@ def _per_object(values: list, n: int, flag: str, default):
 def make_objects(args: argparse.Namespace, scene) -> list:
     """The inserted objects, placed as ``phyir insert`` places them."""
     from phyir.errors import InputError
-    from phyir.insert import views
+    from phyir.insert import placement, views
 
     places = args.places or []
     n = len(args.object)
@@ -99,7 +100,12 @@ def make_objects(args: argparse.Namespace, scene) -> list:
     for spec, (flag, text), scale, material in zip(args.object, places, scales, materials):
         obj = views.make_object(spec, scale, material)
         values = _floats(text, 2 if flag == "--at" else 3, flag)
+        if flag == "--position" and not all(abs(v) <= views.MAX_DISTANCE for v in values):
+            raise InputError(flag, f"expected coordinates within +-{views.MAX_DISTANCE:g} m, got {text!r}")
         views.place_object(obj, scene, **({"at": values} if flag == "--at" else {"position": values}))
+        inside = placement.camera_inside([obj])  # [issue 22] as phyir insert: nothing could be seen
+        if inside:
+            raise InputError(flag, f"{inside} (--scale)")
         objects.append(obj)
     return objects
 
@@ -134,6 +140,10 @@ def run(args: argparse.Namespace) -> int:
     if not (1.0 <= args.fov <= 170.0):
         raise InputError("--fov", f"expected 1..170 degrees, got {args.fov:g}")
     scene = load_scene(args.scene)
+    if scene.depth is not None:
+        from phyir.insert.views import require_depth
+
+        require_depth(scene, args.scene)
     if scene.depth is None:
         from phyir import predict
 

@@ -88,3 +88,21 @@ def size(lo: int, hi: int, *, order: str = "WxH", max_pixels: int | None = None,
 # any finite number / integer: for options whose range the library checks (e.g. TrainConfig.check)
 finite = number(-math.inf, math.inf)
 integer = number(-math.inf, math.inf, integer=True)
+
+
+def path(text: str) -> str:
+    """A file or folder name: not empty (``-o ""`` would mean the current folder, or no file at all)."""
+    if not str(text).strip():
+        raise argparse.ArgumentTypeError(f"expected a file or folder name, got {text!r}")
+    return text
+
+
+def device(text: str) -> str:
+    """A torch device the commands run on: ``cpu``, ``cuda`` or ``cuda:N`` (``torch.device("bogus")``
+    was a RuntimeError traceback; ``meta`` has no data to compute with)."""
+    import re
+
+    t = str(text).strip().lower()
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", t):
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda or cuda:N, got {text!r}")
+    return t

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from phyir.commands import options
+
 HELP = "predict depth, normals, materials and light probes of panoramas (writes scene .exr files)"
 
 IMAGE_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
@@ -14,10 +16,11 @@ IMAGE_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
                         help="panorama or scene files (OpenEXR, .hdr, PNG, JPEG) or folders of them")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+    parser.add_argument("-o", "--output", required=True, metavar="OUT", type=options.path,
                         help="output .exr file (one input) or folder (created; <name>.exr per input)")
     parser.add_argument("--weights", metavar="FILE", help="weights file (default: the shipped model)")
-    parser.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: cuda when available)")
+    parser.add_argument("--device", type=options.device,
+                        help="cpu, cuda, cuda:1, ... (default: cuda when available)")
     parser.add_argument("--outputs", metavar="LIST",
                         help="comma-separated subset of depth,normal,albedo,roughness,metallic,probes "
                              "(default: all); layers the input already has are kept, not recomputed")
@@ -70,6 +73,19 @@ def output_paths(files: list[Path], output: str) -> list[Path]:
     return [out / n for n in names]
 
 
+def uniform_warning(image) -> str | None:
+    """[issue 22, class 5] A panorama that is (nearly) one value — black, clipped white, a single
+    bright pixel on black — carries no room: say that the layers predicted from it are guesses."""
+    import torch
+
+    peak = image.amax(0).flatten().float()
+    lo, hi = torch.quantile(peak[:: max(1, peak.numel() // 100_000)], torch.tensor([0.01, 0.99]))
+    if float(hi - lo) > 1e-6 * max(float(hi), 1e-30):
+        return None
+    return (f"the panorama is uniform (99% of its pixels are {float(hi):.3g}): it shows no room, so the "
+            "predicted layers are guesses")
+
+
 def geometry_confidence(scene) -> str:
     """Record the scene's geometry confidence in its meta (the EXR header) and say it in words:
     "; geometry confidence 0.96", with a warning when it is flagged; "" without depth and normals."""
@@ -97,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     if args.outputs:
         outputs = [s.strip() for s in args.outputs.split(",") if s.strip()]
         bad = [s for s in outputs if s not in OUTPUTS]
+        if not outputs:  # [issue 22] " , " would predict nothing and write the input back
+            raise PhyIRError(f"--outputs: no layer named in {args.outputs!r} (choose from "
+                             f"{', '.join(OUTPUTS)})")
         if bad:
             raise PhyIRError(f"--outputs: unknown {', '.join(bad)} (choose from {', '.join(OUTPUTS)})")
     net_size = None
@@ -120,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
             scene, report = predict_with_report(
                 src, weights=args.weights, device=device, outputs=outputs, lighting=args.lighting,
                 net_size=net_size, hdr=False if args.ldr else None)
+            uniform = uniform_warning(scene.image)
+            if uniform:
+                bar.write(f"phyir predict: warning: {shown(src)}: {uniform}", file=sys.stderr)
             confidence = geometry_confidence(scene)
             dst.parent.mkdir(parents=True, exist_ok=True)
             save_scene(scene, dst, half=args.half)

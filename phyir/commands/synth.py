@@ -10,7 +10,8 @@ HELP = "generate synthetic indoor panoramas with ground-truth layers and light p
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder (created; resumable)")
+    parser.add_argument("--out", required=True, metavar="DIR", type=options.path,
+                        help="output folder (created; resumable)")
     parser.add_argument("--count", type=options.number(1, 10**12, integer=True), required=True, metavar="N",
                         help="number of scenes in the dataset")
     parser.add_argument("--seed", type=options.number(0, 2**63 - 1, integer=True), default=0, metavar="S",

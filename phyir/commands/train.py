@@ -24,7 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="JSON or TOML file of training options (flags below override it)")
     p.add_argument("--data", help="dataset folder written by `phyir synth` (scene files + manifest)")
     p.add_argument("--stage", choices=("gm", "light", "joint", "gs"), help="training stage (default gm)")
-    p.add_argument("--out", help="run folder; each stage writes <out>/<stage>/ (default runs/phyir)")
+    p.add_argument("--out", type=types.path,
+                   help="run folder; each stage writes <out>/<stage>/ (default runs/phyir)")
     p.add_argument("--model", choices=("lite", "full"), help="architecture for a fresh start (default lite)")
     p.add_argument("--init", help="weights to start from (default: the previous stage's export; "
                                   "'scratch' for random)")

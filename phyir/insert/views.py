@@ -212,12 +212,21 @@ def pixel_angle(view: EquirectView | PerspectiveView, view_size: tuple[int, int]
 # the scene, the object and the view of a render
 
 
+def require_depth(scene: PanoScene, path: str | os.PathLike) -> None:
+    """[issue 22, class 5] A depth layer that is 0 everywhere (as stored, or after the loader
+    repaired negative / NaN values) holds no room: nothing can be placed in it or exported."""
+    if scene.depth is not None and not bool((scene.depth > 0).any()):
+        raise InputError(path, "the depth layer is 0 everywhere (or was negative / NaN): the scene holds "
+                               "no room geometry")
+
+
 def load_insert_scene(path: str, *, weights: str | None = None, log=print) -> PanoScene:
     """The scene to insert into: its own layers if it has depth and probes, else the model's
     (``weights``: a weights file for :func:`phyir.predict`, default the shipped ones)."""
     from phyir.io import load_scene
 
     scene = load_scene(path)
+    require_depth(scene, path)
     if scene.depth is not None and scene.probes is not None:
         return scene
     missing = [n for n in ("depth", "probes") if getattr(scene, n) is None]

@@ -155,14 +155,17 @@ def sweep_stale(folder: str | os.PathLike, older_than: float = STALE_SECONDS) ->
     return removed
 
 
+_DEFERRED = (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
+
+
 @contextlib.contextmanager
 def _signals_deferred() -> Iterator[None]:
-    """SIGINT/SIGTERM arriving inside the block take effect after it (the renames of a set)."""
+    """SIGINT/SIGTERM/SIGHUP arriving inside the block take effect after it (the renames of a set)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     got: list[int] = []
-    saved = {s: signal.signal(s, lambda n, _f: got.append(n)) for s in (signal.SIGINT, signal.SIGTERM)}
+    saved = {s: signal.signal(s, lambda n, _f: got.append(n)) for s in _DEFERRED}
     try:
         yield
     finally:
@@ -198,8 +201,9 @@ class AtomicSet:
         for _ in range(100):
             tmp = os.path.join(folder, f".{base}.{os.getpid()}-{secrets.token_hex(4)}{TMP_SUFFIX}")
             try:
-                os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-                self.pairs.append((tmp, target))
+                with _signals_deferred():  # a signal between creating and recording it left it behind
+                    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+                    self.pairs.append((tmp, target))
                 return tmp
             except FileExistsError:
                 continue

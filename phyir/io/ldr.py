@@ -45,8 +45,10 @@ def read_info(src, name: str | None = None) -> LdrInfo:
 
         try:
             f.seek(0)
-            with Image.open(f) as im:
-                return LdrInfo(im.format or "?", im.height, im.width, 8, im.mode)
+            with warnings.catch_warnings():  # the header only; the caller checks the size (sniff)
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+                with Image.open(f) as im:
+                    return LdrInfo(im.format or "?", im.height, im.width, 8, im.mode)
         except Exception as e:
             raise InputError(p, f"not a readable image ({_one_line(e)})") from None
 

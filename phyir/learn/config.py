@@ -56,6 +56,9 @@ RESUME_FIXED = ("stage", "model", "init", "lr", "batch_size", "size", "probe_gri
                 "grad_clip", "seed", "augment", "limit_train", "loss", "train_only", "reinit", "weights")
 
 
+_STRINGS = ("data", "stage", "out", "model", "init", "schedule", "device")  # TrainConfig's text fields
+
+
 def option_name(key: str) -> str:
     return "--" + key.replace("_", "-")
 
@@ -136,9 +139,23 @@ class TrainConfig:
         if bad:
             raise PhyIRError(f"unknown training option(s): {', '.join(bad)}")
         d = dict(d)
+        # [issue 22, class 8] a config file's values of the wrong type: one line naming the option
+        # (``"data": 5`` was a TypeError traceback, ``"train_only": "gmnet"`` five one-letter prefixes)
+        for k in _STRINGS:
+            if d.get(k) is not None and not isinstance(d[k], str):
+                raise InputError(option_name(k), f"expected a string, got {json.dumps(d[k])[:40]}")
         for k in ("size", "probe_grid", "train_only", "reinit"):
             if d.get(k) is not None:
+                if not isinstance(d[k], (list, tuple)):
+                    raise InputError(option_name(k), f"expected a list, got {json.dumps(d[k])[:40]}")
                 d[k] = tuple(d[k])
+        for k in ("train_only", "reinit"):
+            if d.get(k) is not None and not all(isinstance(x, str) for x in d[k]):
+                raise InputError(option_name(k), f"expected module names, got {json.dumps(d[k])[:40]}")
+        for k in ("loss", "weights"):
+            if d.get(k) is not None and not isinstance(d[k], dict):
+                raise InputError(option_name(k), f"expected a table of KEY = VALUE, got "
+                                                 f"{json.dumps(d[k])[:40]}")
         return TrainConfig(**d)
 
     def check(self) -> None:
@@ -197,18 +214,37 @@ def _shown(v) -> str:
     return json.dumps(v) if not isinstance(v, str) else v
 
 
+MAX_CONFIG_BYTES = 1 << 20  # a training config is a few hundred bytes; more is not a config
+
+
 def load_config_file(path: str | os.PathLike) -> dict:
-    """Options from a JSON or TOML file (keys = :class:`TrainConfig` fields)."""
+    """Options from a JSON or TOML file (keys = :class:`TrainConfig` fields).  [issue 22] The file
+    must be a regular file (a FIFO would block, ``/dev/zero`` never end) of at most
+    :data:`MAX_CONFIG_BYTES`, holding one object (a table)."""
+    from phyir.io.files import open_input
+
     p = Path(path)
     try:
-        text = p.read_text()
+        with open_input(p, "config file") as f:
+            data = f.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
         raise InputError(p, f"cannot read config ({e.strerror})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise InputError(p, f"not a config file (larger than {MAX_CONFIG_BYTES >> 20} MiB)")
+    kind = p.suffix.lstrip(".") or "JSON"
     try:
+        text = data.decode("utf-8-sig")  # a UTF-8 byte-order mark is allowed
         if p.suffix == ".toml":
             import tomllib
 
-            return tomllib.loads(text)
-        return json.loads(text)
+            doc = tomllib.loads(text)
+        else:
+            doc = json.loads(text)
+    except RecursionError:
+        raise InputError(p, f"not a valid {kind} config (nested too deeply)") from None
     except Exception as e:
-        raise InputError(p, f"not a valid {p.suffix.lstrip('.') or 'JSON'} config ({e})") from None
+        problem = str(e).splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(p, f"not a valid {kind} config ({problem})") from None
+    if not isinstance(doc, dict):
+        raise InputError(p, f"not a valid {kind} config (a {type(doc).__name__}, not an object of options)")
+    return doc

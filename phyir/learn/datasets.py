@@ -123,6 +123,9 @@ def augment_scene(scene: PanoScene, aug: Augment, gen: torch.Generator) -> PanoS
 def read_manifest(root: str | os.PathLike) -> dict[str, list[str]]:
     """{split: [scene file relative to root]} from the folder's manifest."""
     root = Path(root)
+    if not root.is_dir():  # [issue 22] a FIFO, a file, nothing: not "no manifest in the folder"
+        raise InputError(root, "no such folder" if not os.path.lexists(root) else
+                         "is not a folder (expected a dataset folder written by phyir synth)")
     for name in MANIFEST_NAMES:
         p = root / name
         if p.is_file():
@@ -136,7 +139,11 @@ def read_manifest(root: str | os.PathLike) -> dict[str, list[str]]:
     splits = doc.get("splits", doc) if isinstance(doc, dict) else None
     if not isinstance(splits, dict) or not any(k in splits for k in SPLITS):
         raise InputError(p, "manifest has no train/val/test lists")
-    return {k: [str(f) for f in splits.get(k, [])] for k in SPLITS}
+    bad = [k for k in SPLITS if not (isinstance(splits.get(k, []), list)
+                                     and all(isinstance(f, str) for f in splits.get(k, [])))]
+    if bad:
+        raise InputError(p, f"manifest split {bad[0]!r} is not a list of file names")
+    return {k: list(splits.get(k, [])) for k in SPLITS}
 
 
 def split_files(root: str | os.PathLike, split: str, limit: int | None = None) -> list[Path]:

@@ -63,9 +63,12 @@ def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict
     """(tensors, architecture dict) of a weights file; InputError if it is not one."""
     from safetensors import safe_open
 
+    from phyir.io.files import check_input
+
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise InputError(path, "weights file not found")
+    check_input(path, "weights file")  # [issue 22] a FIFO, a device, a folder: said as such
     try:
         with safe_open(str(path), framework="pt", device="cpu") as f:
             meta = f.metadata() or {}
@@ -79,6 +82,8 @@ def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict
         arch = json.loads(meta["phyir.config"])
     except json.JSONDecodeError as e:
         raise InputError(path, f"corrupt architecture metadata ({e.msg})") from e
+    except RecursionError:
+        raise InputError(path, "corrupt architecture metadata (nested too deeply)") from None
     return tensors, arch
 
 

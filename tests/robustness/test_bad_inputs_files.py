@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import struct
@@ -14,6 +15,7 @@ import subprocess
 import sys
 import time
 import zlib
+from pathlib import Path
 
 import numpy as np
 import OpenEXR
@@ -474,3 +476,128 @@ def test_aspect_ratio_boundary_is_exact(H, W, ok):
     else:
         with pytest.raises(InputError, match="aspect ratio"):
             io.check_panorama_size("p.exr", H, W)
+
+
+# ---------------------------------------------------------------------------------------------
+# the second corpus (benchmarks/robustness_corpus.py): what it found in classes 1-4 and 9
+
+
+def test_special_files_as_config_weights_and_data_are_said_as_such(tmp_path, pano, capsys):
+    """A FIFO as --config blocked forever and /dev/zero ate 10 GB; a FIFO, socket or folder as the
+    weights was "weights file not found"; a FIFO as --data "no split manifest in the folder"."""
+    from phyir.learn.config import load_config_file
+    from phyir.learn.datasets import read_manifest
+    from phyir.learn.weights import read_weights
+
+    os.mkfifo(tmp_path / "fifo")
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(tmp_path / "sock"))
+    sock.close()
+    (tmp_path / "dir").mkdir()
+    os.symlink("/dev/zero", tmp_path / "zero")
+    kinds = {"fifo": "pipe (FIFO)", "sock": "socket", "dir": "folder", "zero": "character device"}
+    for name, kind in kinds.items():
+        for read in (load_config_file, read_weights):
+            with pytest.raises(InputError, match=rf"{name}: is a {re.escape(kind)}, not a regular"):
+                read(tmp_path / name)
+    with pytest.raises(InputError, match="fifo: is not a folder"):
+        read_manifest(tmp_path / "fifo")
+    with pytest.raises(InputError, match="weights file not found"):
+        read_weights(tmp_path / "missing.safetensors")
+    gt = tmp_path / "gt"
+    gt.mkdir()
+    os.mkfifo(gt / pano.name)
+    line = cli_error(capsys, ["eval", pano, "--gt", gt, "--relight", "0"], gt / pano.name)
+    assert "is a pipe (FIFO)" in line
+
+
+def test_config_and_manifest_contents_that_are_not_options(tmp_path):
+    from phyir.learn.config import MAX_CONFIG_BYTES, load_config_file
+    from phyir.learn.datasets import read_manifest
+
+    docs = {"list.json": ("[1]", "a list, not an object"), "number.json": ("5", "a int, not an object"),
+            "deep.json": ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+            "big.json": (" " * (MAX_CONFIG_BYTES + 1), "larger than 1 MiB")}
+    for name, (text, problem) in docs.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(InputError, match=re.escape(problem)) as e:
+            load_config_file(tmp_path / name)
+        assert "\n" not in str(e.value)
+    (tmp_path / "bom.json").write_bytes(b'\xef\xbb\xbf{"seed": 1}')
+    assert load_config_file(tmp_path / "bom.json") == {"seed": 1}
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "manifest.json").write_text(json.dumps({"splits": {"train": "scene.exr"}}))
+    with pytest.raises(InputError, match="manifest split 'train' is not a list of file names"):
+        read_manifest(tmp_path / "d")
+
+
+def test_sighup_ends_a_command_like_sigterm(tmp_path):
+    """SIGHUP (the terminal closed) killed commands mid-write, leaving temporaries; it is now
+    :class:`Terminated` (exit 129) and deferred during a set's renames, like SIGTERM."""
+    target = tmp_path / "a.exr"
+    with sigterm_raises(), pytest.raises(Terminated) as e, AtomicSet() as s:
+        Path(s.add(target)).write_bytes(b"new")
+        os.kill(os.getpid(), signal.SIGHUP)
+        time.sleep(1)
+    assert e.value.signum == signal.SIGHUP and not target.exists() and not temporaries(tmp_path)
+    assert signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # nohup: stays ignored
+    try:
+        with sigterm_raises():
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
+def test_a_closed_stdout_ends_quietly(pano):
+    """`phyir info ... | head -c1`: exit 141 and nothing on stderr (was 'error: Broken pipe', or a
+    BrokenPipeError traceback)."""
+    child = subprocess.Popen([sys.executable, "-m", "phyir.cli", "info", pano, pano, pano],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child.stdout.read(1)
+    child.stdout.close()
+    err = child.stderr.read().decode()
+    assert child.wait(CHILD_TIMEOUT) == 141 and err == "", err
+
+
+def test_invisible_format_characters_in_names_are_escaped(tmp_path, capsys):
+    """Bidi overrides (evil\\u202egpj.hdr shows as evilrdh.jpg), line separators, zero-width marks."""
+    for name in ("evil\u202egpj.hdr", "a\u2028b.hdr", "a\u200bb\ufeff.hdr", "x\u2066y.hdr"):
+        (tmp_path / name).write_bytes(b"junk")
+        line = cli_error(capsys, ["info", tmp_path / name], shown(str(tmp_path / name)))
+        assert not re.search("[\u2028\u2029\u200b-\u200f\u202a-\u202e\u2066-\u2069\ufeff]", line), ascii(line)
+        assert "\\u" in line and len(line.splitlines()) == 1
+
+
+def test_empty_output_names_are_refused(tmp_path, pano, capsys):
+    """`-o ""` wrote into the current folder (predict, synth) or nothing at all (eval --json)."""
+    for argv in (["predict", pano, "-o", ""], ["eval", pano, "--gt", pano.parent, "--json", " "],
+                 ["synth", "--out", "", "--count", "1"], ["train", "--out", ""]):
+        line = cli_error(capsys, argv, "expected a file or folder name")
+        assert argv[0] in line
+
+
+def test_outputs_that_would_replace_the_input_or_sit_under_a_file(tmp_path, pano, capsys):
+    scene = tmp_path / "s.exr"
+    scene.write_bytes(pano.read_bytes())
+    cli_error(capsys, ["insert", scene, "--object", "sphere", "--at", "64,40", "-o", scene], "is the input")
+    assert scene.read_bytes() == pano.read_bytes()
+    (tmp_path / "f.txt").write_text("x")
+    line = cli_error(capsys, ["export", pano, "--gltf", tmp_path / "f.txt" / "o.glb"], "f.txt")
+    assert "is not a folder" in line
+
+
+def test_warnings_are_one_line_and_a_jpeg_bomb_header_is_one_error(tmp_path, capsys):
+    """Python's `file.py:244: InputWarning: ...` + a source line became `phyir <cmd>: warning: ...`;
+    Pillow's DecompressionBombWarning came before the one-line refusal of a 16384x8192 JPEG header."""
+    bad = np.zeros((3, 32, 64), np.float32)
+    bad[:, :4] = np.nan
+    io.exr.write_parts(tmp_path / "nan.exr", [("scene", {}, {"R": bad[0], "G": bad[1], "B": bad[2]})])
+    assert main(["info", str(tmp_path / "nan.exr")]) == 0
+    assert main(["predict", str(tmp_path / "nan.exr"), "-o", str(tmp_path / "o.exr"), "-q"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all(ln.startswith("phyir predict: warning: ") for ln in err), err
+    sof = (b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, 8192, 16384, 3)
+           + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01")
+    (tmp_path / "j.jpg").write_bytes(b"\xff\xd8" + sof + bytes(1000) + b"\xff\xd9")
+    assert "decompression bomb" in cli_error(capsys, ["info", tmp_path / "j.jpg"], "j.jpg")

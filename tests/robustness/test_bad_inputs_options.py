@@ -530,3 +530,67 @@ def test_train_resume_with_other_options_is_refused(tmp_path, capsys, dataset):
     assert str(out / "gm" / "checkpoint.pt") in err
     rc, err = run_cli([*base, "--max-steps", "2", "--workers", "0"], capsys)  # run-time options may change
     assert rc == 0 and "resuming at epoch" in err
+
+
+# ---------------------------------------------------------------------------------------------
+# the second corpus (benchmarks/robustness_corpus.py): what it found in classes 5-8
+
+
+def test_uniform_panoramas_warn_that_the_layers_are_guesses(tmp_path, capsys):
+    """Black, clipped white, one bright pixel on black: exit 0 with no word before."""
+    from phyir.commands.predict import uniform_warning
+
+    spike = torch.zeros(3, 32, 64)
+    spike[:, 5, 5] = 1e38
+    for image in (torch.zeros(3, 32, 64), torch.ones(3, 32, 64), spike):
+        assert "the panorama is uniform" in uniform_warning(image)
+    assert uniform_warning(box_room(32, 64).image) is None
+    io.save_panorama(torch.ones(3, 32, 64), tmp_path / "white.png")
+    rc, err = run_cli(["predict", tmp_path / "white.png", "-o", tmp_path / "o.exr", "-q"], capsys)
+    assert rc == 0 and err.startswith("phyir predict: warning: ") and "uniform" in err, err
+
+
+def test_predict_outputs_naming_no_layer_is_refused(room, tmp_path, capsys):
+    refused(["predict", room[0], "-o", tmp_path / "o.exr", "--outputs", " , "], capsys, "--outputs",
+            [tmp_path / "o.exr"])
+
+
+def test_export_places_objects_by_insert_rules(room, tmp_path, capsys):
+    """export wrote a glTF with a sphere 1e300 m away, or around the camera."""
+    out = tmp_path / "o.glb"
+    base = ["export", room[0], "--gltf", out, "--object", "sphere"]
+    refused(base + ["--position", "1e300,0,0"], capsys, "--position", [out])
+    line = refused(base + ["--position", "0,0,0", "--scale", "5"], capsys, "--position", [out])
+    assert "the camera is inside the object" in line
+
+
+def test_depth_that_is_zero_everywhere_is_refused(room, tmp_path, capsys):
+    """A depth layer of 0 (or negative / NaN, repaired to 0) exported a room collapsed to a point."""
+    image = io.load_scene(room[0]).image.numpy()
+    for value in (0.0, -2.0, float("nan")):
+        p = tmp_path / "flat.exr"
+        depth = np.full(image.shape[1:], value, np.float32)
+        layers = {"R": image[0], "G": image[1], "B": image[2], "depth.Z": depth}
+        io.exr.write_parts(p, [("scene", {}, layers)])
+        refused(["export", p, "--gltf", tmp_path / "o.glb"], capsys, "the depth layer is 0 everywhere",
+                [tmp_path / "o.glb"], progress=True)
+        with pytest.raises(InputError, match="flat.exr: the depth layer is 0 everywhere"):
+            views.load_insert_scene(str(p))
+
+
+def test_weights_json_nested_too_deeply(tmp_path, tiny_weights):
+    """A RecursionError traceback from the metadata's and the sidecar's JSON."""
+    model, path = tiny_weights
+    deep = "[" * 100_000 + "]" * 100_000
+    bad = weights_file(tmp_path, "deep", model)
+    from safetensors.torch import save
+
+    bad.write_bytes(save({k: v.contiguous() for k, v in model.state_dict().items()},
+                         metadata={"format": "phyir-weights-1", "phyir.config": deep}))
+    with pytest.raises(InputError, match="corrupt architecture metadata \\(nested too deeply\\)"):
+        load_model(bad)
+    side = tmp_path / "side.safetensors"
+    side.write_bytes(Path(path).read_bytes())
+    side.with_suffix(".json").write_text(deep)
+    with pytest.warns(UserWarning, match="side.json: unreadable weights sidecar"):
+        phyir.predict(torch.rand(3, 32, 64), weights=side)

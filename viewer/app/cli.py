@@ -9,6 +9,8 @@ import os
 import sys
 import time
 
+from phyir.cli import OneLineParser
+from phyir.commands import options
 from phyir.errors import PhyIRError
 from viewer.app import cli_objects
 from viewer.app.common import gl_current
@@ -53,7 +55,7 @@ def _bounded(lo: float, hi: float, what: str):
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="phyir-view",
         description="Inspect an indoor panorama and what PhyIR infers from it (layers, light probes).")
     p.add_argument("path", nargs="?", help="panorama (.hdr/.exr/.png/.jpg) or scene file (.exr); "
@@ -86,15 +88,17 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--gt", metavar="SCENE", help="ground-truth scene file to compare with")
     p.add_argument("--no-model", action="store_true", help="don't run the model (show the file's layers)")
     p.add_argument("--weights", metavar="FILE", help="model weights (default: the shipped ones)")
-    p.add_argument("--device", help="torch device for the model (default: CUDA when available)")
+    p.add_argument("--device", type=options.device,
+                   help="torch device for the model: cpu, cuda or cuda:N (default: CUDA when available)")
     p.add_argument("--screenshot", metavar="OUT.png", help="render once, save a PNG and exit")
     p.add_argument("--size", type=_size, default=None, metavar="WxH", help="window size (default 1400x820)")
     p.add_argument("--headless", action="store_true",
                    help="render through EGL without a window (with --screenshot)")
     p.add_argument("--no-ui", action="store_true", help="with --screenshot: only the view, no panels")
-    p.add_argument("--timeout", type=float, default=600.0,
+    p.add_argument("--timeout", type=options.number(0.1, 86400), default=600.0,
                    help="with --screenshot: longest wait for loading and the model (s)")
-    p.add_argument("--threads", type=int, help="torch threads for inference (default: cores - 1)")
+    p.add_argument("--threads", type=options.number(1, 1024, integer=True),
+                   help="torch threads for inference (default: cores - 1)")
     p.add_argument("--bench", action="store_true",
                    help="print frame times (idle view, and while the model runs) and exit")
     cli_objects.add_arguments(p)
@@ -131,13 +135,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.bench:
             return _bench(app, args)
         if not scripted:
-            _apply_args(app, args, wait=False)
+            apply_args(app, args, wait=False)
             app.run()
             return 0
         if not app.wait_idle(args.timeout):
             print(f"phyir-view: {path}: still loading after {args.timeout:g} s", file=sys.stderr)
             return 2
-        _apply_args(app, args, wait=True)
+        apply_args(app, args, wait=True)
         for _ in range(3):  # imgui lays windows out over a couple of frames
             app.frame()
         app.screenshot(args.screenshot)
@@ -152,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         app.close()
 
 
-def _apply_args(app: App, args, wait: bool) -> None:
+def apply_args(app: App, args, wait: bool) -> None:
     if args.layer:
         if wait and args.layer not in app.available():
             raise PhyIRError(f"{app.name}: layer {args.layer!r} is not available "
@@ -208,7 +212,7 @@ def _bench(app: App, args) -> int:
     ok = app.wait_idle(args.timeout)
     app.sync_parts = False
     if ok:
-        _apply_args(app, args, wait=True)  # the state asked for (layer, view, objects) is what is timed
+        apply_args(app, args, wait=True)  # the state asked for (layer, view, objects) is what is timed
     during, n_during, parts = app.job_max_frame, app.job_frames, app.job_max_parts
     for _ in range(3):
         app.frame()
@@ -235,11 +239,11 @@ def _bench(app: App, args) -> int:
     print("  its parts, wall (UI-thread CPU) ms: " +
           ", ".join(f"{k} {1000 * w:.1f} ({1000 * c:.1f})" for k, (w, c) in parts.items()))
     if app.objects.objects:
-        _bench_drag(app)
+        bench_drag(app)
     return 0 if ok else 2
 
 
-def _bench_drag(app: App, frames: int = 60) -> None:
+def bench_drag(app: App, frames: int = 60) -> None:
     """Whole frames while the first inserted object is dragged to and fro over its surface, in the
     perspective view aimed at the objects (``--object ... --bench``), then the frame after release."""
     import numpy as np
