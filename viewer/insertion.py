@@ -373,6 +373,15 @@ class InsertionPass:
         ins.composite_uniforms(prog, drawn)
         ins.draw_fullscreen(prog)
 
+    def _draft_programs(self, frame, quality: Quality) -> tuple[moderngl.Program, moderngl.Program]:
+        """The draft composite (linear outputs: one variant per view kind, whatever the layer's
+        display; each variant costs llvmpipe megabytes) and the pass putting it over the layer."""
+        ins = self.insertion
+        kind = int(isinstance(frame.view, PerspectiveView))
+        prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1, DRAFT=1, VIEW_KIND=kind,
+                           **_composite_defines(quality))
+        return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
+
     def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
         """The objects and their shadows at ``quality.composite_scale`` of the region's resolution,
         then put over the layer at full resolution (the panorama stays sharp while they move)."""
@@ -383,7 +392,7 @@ class InsertionPass:
         s = quality.composite_scale
         cw, ch = max(1, math.ceil(rw * s)), max(1, math.ceil(rh * s))
         fbo, obj_tex, keep_tex = ins.draft_targets(cw, ch)
-        prog = ins.program("fullscreen.vert", "composite.frag", **self._defines(frame, quality, DRAFT=1))
+        prog, up = self._draft_programs(frame, quality)
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         fbo.use()
         ctx.viewport = (0, 0, cw, ch)
@@ -396,7 +405,6 @@ class InsertionPass:
         target.use()
         region = (x + rx, fb_h - y - ry - rh, rw, rh)
         ctx.viewport = region
-        up = ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
         self._frame_program(up, renderer, frame, (x, y, w, h), fb_h)
         obj_tex.use(13)
         keep_tex.use(14)
