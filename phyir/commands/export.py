@@ -8,6 +8,11 @@ import os
 
 from phyir.commands import options
 
+# phyir.insert.views.MAX_DISTANCE, repeated (as viewer/commands/insert.py does) so that `phyir --help`
+# imports no torch; tests/robustness/test_bad_inputs_options.py checks they agree
+POSITION = 1000.0
+PIXEL = 1e6  # --at: finite; the panorama's size is checked once it is loaded
+
 HELP = "export a scene as a glTF room (mesh, materials, camera, lights, objects) + its HDR panorama"
 
 
@@ -36,9 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--object", action="append", default=[], metavar="OBJ",
         help="insert sphere, cube, cylinder or a mesh file (repeatable; each with one --at or --position)")
     add("--at", dest="places", action=_Placement, metavar="U,V",
+        type=options.numbers(2, -PIXEL, PIXEL, "U,V"),
         help="stand the object on the surface seen at pixel column U, row V")
     add("--position", dest="places", action=_Placement, metavar="X,Y,Z",
-        help="put the object's centre at this world point (m)")
+        type=options.numbers(3, -POSITION, POSITION, "X,Y,Z"),
+        help=f"put the object's centre at this world point (m, each within +-{POSITION:g})")
     add("--scale", action="append", type=options.number(1e-3, 100), default=[], metavar="S",
         help="object size (once for all objects, or once per object): primitives' radius / half-extent "
              "in m (default 0.25), a factor for meshes (default 1), as in phyir insert")
@@ -97,31 +104,14 @@ def make_objects(args: argparse.Namespace, scene) -> list:
     objects = []
     scales = _per_object(args.scale, n, "--scale", None)
     materials = _per_object(args.material, n, "--material", "diffuse")
-    for spec, (flag, text), scale, material in zip(args.object, places, scales, materials):
+    for spec, (flag, values), scale, material in zip(args.object, places, scales, materials):
         obj = views.make_object(spec, scale, material)
-        values = _floats(text, 2 if flag == "--at" else 3, flag)
-        if flag == "--position" and not all(abs(v) <= views.MAX_DISTANCE for v in values):
-            raise InputError(flag, f"expected coordinates within +-{views.MAX_DISTANCE:g} m, got {text!r}")
         views.place_object(obj, scene, **({"at": values} if flag == "--at" else {"position": values}))
         inside = placement.camera_inside([obj])  # [issue 22] as phyir insert: nothing could be seen
         if inside:
             raise InputError(flag, f"{inside} (--scale)")
         objects.append(obj)
     return objects
-
-
-def _floats(text: str, n: int, flag: str) -> tuple[float, ...]:
-    import math
-
-    from phyir.errors import InputError
-
-    try:
-        vals = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise InputError(flag, f"expected {n} comma-separated finite numbers, got {text!r}")
-    return vals
 
 
 def run(args: argparse.Namespace) -> int:

@@ -195,6 +195,9 @@ def test_default_scale_primitives_25cm_meshes_their_units(tmp_path):
     assert (cmd.FOV, cmd.SCALE, cmd.RENDER_SIDE) == ((views.MIN_FOV, views.MAX_FOV),
                                                     (views.MIN_SCALE, views.MAX_SCALE), views.MAX_RENDER_SIDE)
     assert (cmd.POSITION, cmd.RENDER_PIXELS) == (views.MAX_DISTANCE, views.MAX_RENDER_PIXELS)
+    from phyir.commands import export
+
+    assert export.POSITION == views.MAX_DISTANCE
 
 
 # ---------------------------------------------------------------------------------------------
