@@ -34,6 +34,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
+from phyir.depth_normal import refine_depth
 from phyir.errors import InputError, PhyIRError
 from phyir.filters import guided_upsample
 from phyir.scene import PanoScene
@@ -53,6 +54,11 @@ MAX_PREDICT_SIZE = (4096, 8192)
 # (solid-angle weighted) facing away has collapsed (the whole panorama "up": real rooms unlike the
 # training data) and is replaced by the normals of the predicted depth.
 MAX_AWAY_SHARE = 0.05
+# depth-normal refinement (phyir.depth_normal.refine_depth), chosen on 10 synthetic rooms of seed 7000
+# (benchmarks/depth_normal_refine.py; checked on 20 others): reach ~ 1/sqrt(anchor) = 18 px, steps
+# further than ~0.02 in log depth from the normals' are occlusions
+REFINE_ANCHOR: float | None = 3e-3  # None: no refinement (the raw network depth)
+REFINE_TAU = 0.02
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 # the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
 # 32, W = 2H, at most this.  Peak memory of predict on an input of the net's size (lite model, CPU,
@@ -260,6 +266,7 @@ class PredictReport:
     hdr_recovery: Any = None  # LDR inputs: phyir.lighting.hdr_recovery.Recovery of the image layer
     normals_from: str = ""  # "network", or "depth" when the network's normals were implausible
     normals_away: float | None = None  # share of the network's normals facing away from the camera
+    depth_refined: bool = False  # the depth was made consistent with the network's normals
 
 
 class _Clock:
@@ -344,6 +351,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     with torch.inference_mode(), autocast:
         if plan.run_gm:
             gm = _plausible_gmnet(model, xn, clock.report)
+            _consistent_depth(gm, plan, clock.report)
             clock.step("gmnet", 0.35)
         for k in plan.have & plan.gm_inputs:  # the input's own layers, at the network's resolution
             v = pano.resize_area(getattr(scene, k).float(), Hn, Wn).to(dev)[None]
@@ -383,6 +391,19 @@ def _plausible_gmnet(model: Any, xn: Tensor, report: PredictReport) -> dict[str,
         report.gm_pass = "mirrored"
         return flipped
     return gm
+
+
+def _consistent_depth(gm: dict[str, Tensor], plan: _Plan, report: PredictReport) -> None:
+    """GMNet's depth made to follow its normals (:func:`phyir.depth_normal.refine_depth`): planes come
+    out planar and the two layers agree. Only where the normals are the network's and plausible (a
+    collapsed normal head would bend the depth) and the depth is predicted, not the input's."""
+    if REFINE_ANCHOR is None or "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
+        return
+    if away_share(gm["normal"][0]) > MAX_AWAY_SHARE:
+        return
+    gm["depth"] = refine_depth(gm["depth"].double(), gm["normal"].double(),
+                               anchor=REFINE_ANCHOR, tau=REFINE_TAU).to(gm["depth"].dtype)
+    report.depth_refined = True
 
 
 def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan,
@@ -485,6 +506,8 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
     if report.normals_from:
         out.meta["predict.normals"] = report.normals_from
         out.meta["predict.normals_away"] = f"{report.normals_away:.4f}"
+    if report.depth_refined:
+        out.meta["predict.depth"] = "refined by the normals"
     out.meta["predict.seconds"] = json.dumps(report.seconds)
 
 

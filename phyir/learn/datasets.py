@@ -10,8 +10,12 @@ Input handling (the same at training and inference time):
 Augmentation (training split only; every random draw comes from a generator seeded by
 (seed, epoch, index), so a sample is the same in every process and after a resume):
 - exposure jitter: image and probes times 2^U(-a, a) (matters through the tone mapping below),
-- HDR -> LDR with probability ``p_ldr``: ACES filmic curve, sRGB gamma, 8-bit quantisation, then
-  the loader's sRGB decode, so the network also sees saturated, compressed photographs,
+- light colour: image and probes times per-channel gains (red and blue 2^U(-c, c) against green):
+  exact, since radiance is linear in the emitters' colour, and it covers what the generator's
+  2700-6500 K lights do not (firelight, sodium lamps, unbalanced cameras),
+- HDR -> LDR with probability ``p_ldr``: a random camera pipeline (:mod:`phyir.learn.camera`:
+  white balance, ACES / Reinhard / clipping, sRGB, 8 bits, often JPEG), then the loader's sRGB
+  decode, so the network also sees saturated, tinted, compressed photographs,
 - yaw rotation by a random circular shift of whole columns (:func:`phyir.transforms.rotate_yaw`:
   normals and probes rotated with it),
 - left-right mirror with probability 0.5 (:func:`phyir.transforms.mirror_lr`: x negated).
@@ -34,6 +38,7 @@ from torch.utils.data import Dataset
 
 from phyir.color import aces, exposure_scale, luminance
 from phyir.errors import InputError
+from phyir.learn.camera import CameraPipeline, simulate_ldr
 from phyir.pano import resize_area
 from phyir.scene import PanoScene
 
@@ -60,10 +65,12 @@ def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
 @dataclass(frozen=True)
 class Augment:
     exposure_stops: float = 1.0  # jitter by 2^U(-a, a)
+    light_colour_stops: float = 1.0  # red and blue gains 2^U(-c, c)
     p_ldr: float = 0.3
     ldr_exposure: tuple[float, float] = (0.5, 4.0)  # camera exposure before tone mapping, log-uniform
     rotate: bool = True
     mirror: bool = True
+    camera: CameraPipeline = CameraPipeline()
 
 
 def resize_scene(scene: PanoScene, H: int, W: int, grid: tuple[int, int] | None = None) -> PanoScene:
@@ -110,12 +117,16 @@ def augment_scene(scene: PanoScene, aug: Augment, gen: torch.Generator) -> PanoS
     if aug.mirror and u() < 0.5:
         scene = mirror_lr(scene)
     gain = 2.0 ** (aug.exposure_stops * (2 * u() - 1))
+    if aug.light_colour_stops:
+        c = aug.light_colour_stops
+        gain = gain * torch.tensor([2.0 ** (c * (2 * u() - 1)), 1.0, 2.0 ** (c * (2 * u() - 1))])
+        gain = gain.to(scene.image)[:, None, None]
     scene = scene.replace(image=scene.image * gain,
                           probes=None if scene.probes is None else scene.probes * gain)
     if u() < aug.p_ldr:
         lo, hi = aug.ldr_exposure
         exposure = lo * (hi / lo) ** u() / max(float(luminance(scene.image).median()), 1e-8) * 0.18
-        scene = scene.replace(image=hdr_to_ldr_linear(scene.image, exposure) / exposure,
+        scene = scene.replace(image=simulate_ldr(scene.image, exposure, gen, aug.camera) / exposure,
                               meta={**scene.meta, "ldr": "1"})
     return scene
 

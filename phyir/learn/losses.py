@@ -11,6 +11,9 @@ Formulas (see docs/training.md):
   Eigen's scale-invariant log loss instead).
 - N: mean angle (radians) between predicted and true normals.
 - depth gradient: L1 between the horizontal (wrapping) and vertical finite differences of log depth.
+- depth–normal: L1 between the predicted log depth's steps and the steps the predicted normals
+  imply (:func:`phyir.depth_normal.log_depth_steps`), where the ground truth has one surface (not
+  in the paper: it ties the two heads together, so their layers agree on rooms unlike the training set).
 - L (probes): L2 of log(1 + x) between predicted and true probes.
 - SC: neighbouring probes pulled together, weighted by exp(-|Δ log depth| / σ_sc) between their
   blocks, so probes across depth discontinuities are left free.
@@ -28,10 +31,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from phyir.depth_normal import agreement, log_depth_steps
 from phyir.pano import resize_area
 from phyir.scene import PanoScene
 
-GM_TERMS = ("albedo", "roughness", "metallic", "depth", "normal", "depth_grad")
+GM_TERMS = ("albedo", "roughness", "metallic", "depth", "normal", "depth_grad", "depth_normal")
 LIGHT_TERMS = ("probe", "sc", "render")
 
 
@@ -45,6 +49,7 @@ class LossWeights:
     depth: float = 0.0
     normal: float = 0.0
     depth_grad: float = 0.0
+    depth_normal: float = 0.0
     probe: float = 0.0
     sc: float = 0.0
     render: float = 0.0
@@ -55,12 +60,13 @@ class LossWeights:
 
 # supplement B.1
 STAGE_WEIGHTS: dict[str, LossWeights] = {
-    "gm": LossWeights(albedo=1.0, roughness=1.0, metallic=1.0, depth=1.0, normal=0.1, depth_grad=0.1),
+    "gm": LossWeights(albedo=1.0, roughness=1.0, metallic=1.0, depth=1.0, normal=0.1, depth_grad=0.1,
+                      depth_normal=0.1),
     "light": LossWeights(probe=1.0, sc=1.0, render=1.0),
     # joint fine-tuning: the supplement lists β_L = β_render = 1, β_SC = 0.1; the GMNet supervision
     # terms are kept at their stage-1 weights so geometry and material stay anchored to the labels
     "joint": LossWeights(albedo=1.0, roughness=1.0, metallic=1.0, depth=1.0, normal=0.1, depth_grad=0.1,
-                         probe=1.0, sc=0.1, render=1.0),
+                         depth_normal=0.1, probe=1.0, sc=0.1, render=1.0),
     "gs": LossWeights(albedo=1.0, roughness=1.0, normal=0.1),
 }
 
@@ -141,6 +147,21 @@ def depth_gradient_loss(pred: Tensor, gt: Tensor, mask: Tensor | None = None) ->
         mx = mask * torch.roll(mask, -1, dims=-1)
         my = mask[..., 1:, :] * mask[..., :-1, :]
     return _mean((px - gx).abs(), mx) + _mean((py - gy).abs(), my)
+
+
+SURFACE_TAU = 0.01  # ground-truth steps further than this from their normals' cross an occlusion
+
+
+def depth_normal_loss(depth: Tensor, normal: Tensor, gt_depth: Tensor, gt_normal: Tensor) -> Tensor:
+    """L1 between the steps of predicted log depth and those the predicted normals imply, on the
+    steps where the ground truth's depth follows its own normals (one surface, no occlusion)."""
+    gt_log = torch.log(gt_depth.clamp(min=1e-3))
+    wx, wy = agreement(gt_log, log_depth_steps(gt_normal), SURFACE_TAU)
+    steps = log_depth_steps(normal)
+    z = torch.log(depth.clamp(min=1e-3))
+    zx, zy = torch.roll(z, -1, dims=-1) - z, torch.cat((z[..., 1:, :], z[..., -1:, :]), -2) - z
+    num = ((zx - steps.gx).abs() * wx).flatten(1).sum(1) + ((zy - steps.gy).abs() * wy).flatten(1).sum(1)
+    return num / (wx.flatten(1).sum(1) + wy.flatten(1).sum(1)).clamp(min=1.0)
 
 
 def probe_loss(pred: Tensor, gt: Tensor) -> Tensor:
@@ -226,6 +247,8 @@ def total_loss(pred: dict[str, Tensor], gt: PanoScene, weights: LossWeights,
         terms["normal"] = angular_loss(pick("normal"), gt.normal)
     if "depth_grad" in w:
         terms["depth_grad"] = depth_gradient_loss(pred["depth"], gt.depth)
+    if "depth_normal" in w:
+        terms["depth_normal"] = depth_normal_loss(pred["depth"], pick("normal"), gt.depth, gt.normal)
     if "probe" in w:
         terms["probe"] = probe_loss(pred["probes"], gt.probes)
     if "sc" in w:

@@ -189,12 +189,25 @@ METALS = {"silver": (0.97, 0.96, 0.91), "aluminium": (0.91, 0.92, 0.92), "gold":
           "copper": (0.96, 0.64, 0.54), "iron": (0.56, 0.57, 0.58), "chrome": (0.55, 0.56, 0.55)}
 
 
+STUDIO_SHARE = 0.08
+DARK_CEILING_SHARE = 0.15
+
+
 class Palette:
     """Draws materials from the palettes with a numpy Generator (deterministic per scene)."""
 
     def __init__(self, rng: np.random.Generator):
         self.rng = rng
         self.materials: list[Material] = []
+        # rooms users shoot beyond homes: white photo studios (white walls, floor and ceiling, a
+        # cyclorama's worth of bounce) and dark ceilings (bars, theatres, lofts) under bright fixtures
+        u = float(rng.random())
+        self.style = "studio" if u < STUDIO_SHARE else \
+            "dark_ceiling" if u < STUDIO_SHARE + DARK_CEILING_SHARE else "home"
+
+    def _white(self, r: tuple[float, float]) -> int:
+        c = self._jitter((0.86, 0.86, 0.85), 0.04)
+        return self.add(Material(PLAIN, c, c, 1.0, r))
 
     def add(self, m: Material) -> int:
         m.seed = int(self.rng.integers(0, 2**20))
@@ -209,6 +222,8 @@ class Palette:
         return tuple(float(x) for x in np.clip(c, 0.01, 0.95))
 
     def wall(self) -> int:
+        if self.style == "studio":
+            return self._white((0.9, 0.85))
         c = self._jitter(self._pick(WALL_PAINTS))
         r = float(self.rng.uniform(0.6, 0.95))
         if self.rng.random() < 0.25:
@@ -220,10 +235,15 @@ class Palette:
         return self.add(Material(PLAIN, c, c, 1.0, (r, r - 0.05)))
 
     def ceiling(self) -> int:
+        if self.style == "dark_ceiling":
+            c = self._jitter((0.1, 0.1, 0.1), 0.6)
+            return self.add(Material(PLAIN, c, c, 1.0, (0.8, 0.7)))
         c = self._jitter((0.82, 0.81, 0.79), 0.04)
         return self.add(Material(PLAIN, c, c, 1.0, (0.9, 0.85)))
 
     def floor(self) -> int:
+        if self.style == "studio" and self.rng.random() < 0.7:
+            return self._white((0.5, 0.4))
         u = self.rng.random()
         if u < 0.55:
             return self.wood(glossy=self.rng.random() < 0.6, plank=float(self.rng.uniform(0.12, 0.25)))

@@ -36,9 +36,15 @@ from phyir.synth.sources import balance_sources, light_colour, polygon_area
 
 ROOM_WIDTH = (2.5, 9.0)
 ROOM_HEIGHT = (2.4, 3.5)
-CAMERA_HEIGHT = (1.2, 1.7)
+# halls (lobbies, studios, warehouses, churches): users' large rooms, where a model trained on
+# bedrooms alone bends the far walls into a bowl
+HALL_SHARE = 0.15
+HALL_WIDTH = (9.0, 30.0)
+HALL_HEIGHT = (3.5, 8.0)
+CAMERA_HEIGHT = (1.0, 2.0)  # tripods and hand-held: seated to over-the-head
 CAMERA_CLEARANCE = 0.35  # metres from walls and furniture
 SOURCES = (1, 6)
+HALL_SOURCES = (3, 9)
 
 
 @dataclass
@@ -66,6 +72,8 @@ class Room:
     camera: tuple = (0.0, 1.5, 0.0)
     yaw: float = 0.0
     kind: str = "rect"
+    hall: bool = False
+    style: str = "home"  # the palette's: home, studio (white), dark_ceiling
     reserved: list = field(default_factory=list)  # OBBs (centre, half, yaw) kept free
 
     # -- geometry helpers ---------------------------------------------------------------------
@@ -135,8 +143,9 @@ class Room:
     def summary(self) -> dict:
         xs = [p[0] for p in self.polygon]
         zs = [p[1] for p in self.polygon]
-        return {"kind": self.kind, "width": max(xs) - min(xs), "depth": max(zs) - min(zs),
-                "height": self.height, "items": [it.name for it in self.items if not it.fixture]}
+        return {"kind": self.kind, "hall": self.hall, "style": self.style, "width": max(xs) - min(xs),
+                "depth": max(zs) - min(zs), "height": self.height,
+                "items": [it.name for it in self.items if not it.fixture]}
 
 
 @dataclass
@@ -188,10 +197,17 @@ def generate_room(rng: np.random.Generator) -> Room:
     raise RuntimeError("generate_room: could not place a camera in 20 attempts")
 
 
+def room_extent(rng: np.random.Generator) -> tuple[float, float, float, bool]:
+    """Width, depth, height of the footprint's bounding box, and whether the room is a hall."""
+    hall = rng.random() < HALL_SHARE
+    sides, heights = (HALL_WIDTH, HALL_HEIGHT) if hall else (ROOM_WIDTH, ROOM_HEIGHT)
+    W = float(rng.uniform(*sides))
+    D = float(rng.uniform(max(sides[0], 0.5 * W), min(sides[1], 1.6 * W)))
+    return W, D, float(rng.uniform(*heights)), hall
+
+
 def _try_room(rng: np.random.Generator) -> Room | None:
-    W = float(rng.uniform(*ROOM_WIDTH))
-    D = float(rng.uniform(max(ROOM_WIDTH[0], 0.5 * W), min(ROOM_WIDTH[1], 1.6 * W)))
-    H = float(rng.uniform(*ROOM_HEIGHT))
+    W, D, H, hall = room_extent(rng)
     if rng.random() < 0.35 and min(W, D) > 3.5:
         cw, cd = float(rng.uniform(0.3, 0.55) * W), float(rng.uniform(0.3, 0.55) * D)
         poly = [(0, 0), (W, 0), (W, D - cd), (W - cw, D - cd), (W - cw, D), (0, D)]
@@ -203,21 +219,23 @@ def _try_room(rng: np.random.Generator) -> Room | None:
         rects = [(0, W, 0, D)]
         reentrant = set()
         kind = "rect"
-    room = Room(polygon=[(float(x), float(z)) for x, z in poly], height=H, kind=kind)
+    room = Room(polygon=[(float(x), float(z)) for x, z in poly], height=H, kind=kind, hall=hall)
     pal = Palette(rng)
-    b = _Builder(room, pal, rng)
+    room.materials = pal.materials  # filled as the room is built (balance_sources reads the shell's)
+    b = _Builder(room, pal, rng, HALL_SOURCES if hall else SOURCES)
     b.shell(rects, reentrant)
     b.furnish()
     b.lights()
     if not b.place_camera():
         return None
     room.materials = pal.materials
+    room.style = pal.style
     return room
 
 
 class _Builder:
-    def __init__(self, room: Room, pal: Palette, rng: np.random.Generator):
-        self.room, self.pal, self.rng = room, pal, rng
+    def __init__(self, room: Room, pal: Palette, rng: np.random.Generator, sources: tuple[int, int]):
+        self.room, self.pal, self.rng, self.sources = room, pal, rng, sources
         self.walls = []  # (start (x,z), dir (x,z), inward normal (x,z), length, u offset)
         self.openings = {}  # wall index -> [(x0, x1, y0, y1, kind)]
         self.n_windows = 0
@@ -248,7 +266,7 @@ class _Builder:
             self.walls.append((a, e, n_in, L, u))
             u += L
         # lighting plan: windows, panels, lamps
-        n_src = int(rng.integers(SOURCES[0], SOURCES[1] + 1))
+        n_src = int(rng.integers(self.sources[0], self.sources[1] + 1))
         n_win = int(min(rng.choice([0, 1, 1, 2, 2, 3]), n_src))
         self.plan = {"windows": n_win, "rest": n_src - n_win}
         candidates = [i for i in range(len(self.walls)) if i not in reentrant and self.walls[i][3] > 1.6]

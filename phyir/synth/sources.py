@@ -20,6 +20,7 @@ SOURCE_RATIO = (2.6, 3.5)
 
 
 WALL_GAIN = 0.8  # calibration of wall_radiance against rendered medians (docs/synthetic-data.md)
+TYPICAL_RHO = 0.6  # the shell albedo WALL_GAIN was calibrated at (the median of the home palette)
 
 
 def _flux(p: PrimSpec) -> float:
@@ -48,10 +49,17 @@ def _window_flux(room: Room, p: PrimSpec) -> float:
 
 def wall_radiance(room: Room, flux: float) -> float:
     """Radiance of a typical lit surface for ``flux`` entering the room: irradiance
-    flux / (shell area x (1 - mean albedo)) with interreflections, times albedo / pi (albedos 0.5)."""
+    flux / (shell area x (1 - mean albedo)) with interreflections, times albedo / pi: the shell's
+    area-weighted albedo where its materials are known (a white studio's walls are ~3x brighter
+    for the same flux than a room's of albedo 0.5), else 0.5."""
     perimeter = sum(math.dist(room.polygon[i], room.polygon[i - 1]) for i in range(len(room.polygon)))
-    shell = 2 * polygon_area(room.polygon) + perimeter * room.height
-    return WALL_GAIN * flux / (math.pi * shell)
+    floor, walls = polygon_area(room.polygon), perimeter * room.height
+    shell = 2 * floor + walls
+    rho = 0.5
+    if len(room.materials) >= 3:  # the shell's: floor, ceiling, walls (rooms.shell draws them first)
+        a = [float(np.mean(m.c1) + np.mean(m.c2 if any(m.c2) else m.c1)) / 2 for m in room.materials[:3]]
+        rho = min((floor * (a[0] + a[1]) + walls * a[2]) / shell, 0.9)
+    return WALL_GAIN * (rho / (1 - rho)) / (TYPICAL_RHO / (1 - TYPICAL_RHO)) * flux / (math.pi * shell)
 
 
 def balance_sources(room: Room, rng: np.random.Generator) -> float | None:
@@ -72,7 +80,7 @@ def balance_sources(room: Room, rng: np.random.Generator) -> float | None:
     # depends only on its area): a panel too large for the lower bound is made smaller
     reach = 0.7 * l_key / (per_flux * f_key)
     if key.kind == G.QUAD and reach < 10 ** SOURCE_RATIO[0]:
-        k = max(0.3, math.sqrt(reach / 10 ** SOURCE_RATIO[0]))
+        k = max(0.15, math.sqrt(reach / 10 ** SOURCE_RATIO[0]))
         key.size = (*key.size[:2], key.size[2] * k, key.size[3] * k)
         f_key = _flux(key)
     # dim the others so that the panels and lamps together leave room for the windows' light (or,

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from phyir import inference, pano
+from phyir.scene import PanoScene
 from phyir.synth.analytic import box_room
 
 H, W = 32, 64
@@ -98,3 +99,49 @@ def test_plausible_normals_run_one_pass_and_stay_as_predicted():
                                                 probes=None)
     assert gm.calls == 1 and report.gm_pass == "upright" and report.normals_from == "network"
     assert torch.equal(out.normal, gm(dark_top[None])["normal"][0])
+
+
+class BentGM(StubGM):
+    """Exact box-room normals, depth bent into a bowl (+25 % at the horizon): what large real rooms
+    got from the network."""
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = super().forward(x)
+        lat = pano.pixel_lonlat(H, W)[1]
+        out["depth"] = out["depth"] * (1 + 0.25 * torch.cos(lat) ** 2)
+        return out
+
+
+def _planarity_error(depth: torch.Tensor, truth: torch.Tensor) -> float:
+    """Mean relative depth error after the one global scale (which normals cannot tell)."""
+    s = torch.exp((torch.log(truth) - torch.log(depth)).median())
+    return float(((depth * s - truth).abs() / truth).mean())
+
+
+def test_predicted_depth_is_refined_to_follow_plausible_normals():
+    gm = BentGM()
+    dark_top = lamp_panorama().flip(-2)
+    out, report = inference.predict_with_report(dark_top, model=StubModel(gm), outputs=("depth", "normal"),
+                                                probes=None)
+    with torch.no_grad():
+        raw = gm(dark_top[None])["depth"][0]
+    truth = box_room(H, W, LO, HI)[0].float().flip(-2)
+    assert report.depth_refined and out.meta["predict.depth"] == "refined by the normals"
+    # (at predict's anchor the depth keeps part of a bend this global: 0.046 vs 0.070)
+    assert _planarity_error(out.depth, truth) < 0.75 * _planarity_error(raw, truth)
+    # the normal layer is the network's, and the depth now agrees with it
+    assert torch.equal(out.normal, gm(dark_top[None])["normal"][0])
+    after = float(angle_deg(pano.normals_from_depth(out.depth), out.normal).mean())
+    before = float(angle_deg(pano.normals_from_depth(raw), out.normal).mean())
+    assert after < 0.5 * before, (after, before)
+
+
+def test_depth_is_not_refined_by_collapsed_normals_or_when_given():
+    gm = StubGM(collapse_both=True)
+    _, report = inference.predict_with_report(lamp_panorama(), model=StubModel(gm),
+                                              outputs=("depth", "normal"), probes=None)
+    assert not report.depth_refined
+    given = PanoScene(image=lamp_panorama().flip(-2), depth=torch.full((1, H, W), 2.0))
+    out, report = inference.predict_with_report(given, model=StubModel(BentGM()), outputs=("normal",),
+                                                probes=None)
+    assert not report.depth_refined and torch.equal(out.depth, given.depth)

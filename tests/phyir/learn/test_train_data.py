@@ -58,14 +58,14 @@ def test_ldr_simulation():
 
 def test_augmentation_keeps_layers_consistent_and_is_reproducible():
     s = tiny_scene(1, grid=(4, 8), probe_size=(8, 16))
-    aug = Augment(p_ldr=0.0, exposure_stops=0.0, mirror=False)
+    aug = Augment(p_ldr=0.0, exposure_stops=0.0, light_colour_stops=0.0, mirror=False)
     a = augment_scene(s, aug, torch.Generator().manual_seed(5))
     # the rotation is by whole probe blocks and texels: it equals rotate_yaw for some shift
     matches = [k for k in range(0, 128, 16) if torch.equal(rotate_yaw(s, k).image, a.image)]
     assert len(matches) == 1 and matches[0] > 0
     assert torch.equal(rotate_yaw(s, matches[0]).probes, a.probes)
     assert torch.equal(rotate_yaw(s, matches[0]).normal, a.normal)
-    no_rot = Augment(p_ldr=0.0, exposure_stops=0.0, rotate=False)
+    no_rot = Augment(p_ldr=0.0, exposure_stops=0.0, light_colour_stops=0.0, rotate=False)
     mirrored = mirror_lr(s)
     seen = set()
     for seed in range(8):  # each draw is either the scene or its mirror image (normals' x negated)

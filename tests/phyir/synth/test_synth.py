@@ -23,7 +23,17 @@ from phyir.synth.dataset import (
 )
 from phyir.synth.footprints import point_in_obb
 from phyir.synth.lights import AREA, PORTAL, SUN
-from phyir.synth.rooms import CAMERA_HEIGHT, ROOM_HEIGHT, ROOM_WIDTH, generate_room
+from phyir.synth.rooms import (
+    CAMERA_HEIGHT,
+    HALL_HEIGHT,
+    HALL_SHARE,
+    HALL_SOURCES,
+    HALL_WIDTH,
+    ROOM_HEIGHT,
+    ROOM_WIDTH,
+    SOURCES,
+    generate_room,
+)
 from phyir.synth.tracer import trace
 
 ROOMS = [generate_room(np.random.default_rng([11, i])) for i in range(25)]
@@ -75,12 +85,32 @@ def test_rooms_are_deterministic():
     assert c.prims != a.prims
 
 
+def test_rooms_cover_halls_studios_dark_ceilings_and_camera_heights():
+    rooms = [generate_room(np.random.default_rng([12, i])) for i in range(300)]
+    halls = [r for r in rooms if r.hall]
+    # binomial(300, HALL_SHARE): 45 +- 6.2; 4 sigma either side
+    assert abs(len(halls) - 300 * HALL_SHARE) < 4 * (300 * HALL_SHARE * (1 - HALL_SHARE)) ** 0.5
+    assert max(max(r.summary()["width"], r.summary()["depth"]) for r in halls) > 20
+    assert max(r.height for r in halls) > 6
+    styles = {r.style for r in rooms}
+    assert styles == {"home", "studio", "dark_ceiling"}
+    heights = [r.camera[1] for r in rooms]
+    assert min(heights) < 1.1 and max(heights) > 1.9
+    # a dark ceiling is dark, a studio's walls white (ceiling material is the shell's second)
+    dark = next(r for r in rooms if r.style == "dark_ceiling")
+    assert max(dark.materials[1].c1) < 0.25
+    studio = next(r for r in rooms if r.style == "studio")
+    assert min(studio.materials[2].c1) > 0.75
+
+
 @pytest.mark.parametrize("room", ROOMS, ids=[f"room{i}" for i in range(len(ROOMS))])
 def test_room_sizes_camera_and_lights(room):
     s = room.summary()
+    sides, heights, n_sources = (HALL_WIDTH, HALL_HEIGHT, HALL_SOURCES) if s["hall"] else \
+        (ROOM_WIDTH, ROOM_HEIGHT, SOURCES)
     for side in (s["width"], s["depth"]):
-        assert ROOM_WIDTH[0] - 1e-9 <= side <= ROOM_WIDTH[1] + 1e-9
-    assert ROOM_HEIGHT[0] <= room.height <= ROOM_HEIGHT[1]
+        assert sides[0] - 1e-9 <= side <= sides[1] + 1e-9
+    assert heights[0] <= room.height <= heights[1]
     x, y, z = room.camera
     assert CAMERA_HEIGHT[0] <= y <= CAMERA_HEIGHT[1]
     assert room.contains(x, z, 0.3)
@@ -88,7 +118,7 @@ def test_room_sizes_camera_and_lights(room):
     sc = room.build()
     kinds = sc.lights.kind.tolist()
     sources = len(kinds) - kinds.count(SUN)
-    assert 1 <= sources <= 6
+    assert 1 <= sources <= n_sources[1]
     # dynamic range: a room lit by the sky alone would be too flat; without the sun it has a lamp or panel
     if SUN not in kinds:
         assert kinds.count(AREA) >= 1

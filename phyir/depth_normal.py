@@ -1,0 +1,121 @@
+"""Depth–normal consistency on the panorama grid.
+
+A plane with normal n through neighbouring pixels i, j satisfies n·P_i = n·P_j with P = r d, so
+    log r_j - log r_i = log(-n·d_i) - log(-n·d_j):
+normals predict the steps of log depth between neighbours. :func:`log_depth_steps` gives those steps
+(the one formula, also used by the training loss), :func:`refine_depth` solves for the log depth that
+follows them where depth and normals agree on a surface and stays near the predicted depth (a
+screened Poisson problem, solved by conjugate gradients), so walls and floors come out planar.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from phyir import pano
+
+GRAZING = 0.08  # |n·d| below which a step is too ill-conditioned to use
+CREASE_COS = 0.9  # neighbours whose normals differ by more than ~25° are not one surface
+
+
+@dataclass(frozen=True)
+class Steps:
+    """Log-depth steps to the next column (wrapping) and the next row, with their weights in [0, 1]
+    (0: no usable step). All [..., 1, H, W]; the last row's vertical step has weight 0."""
+
+    gx: Tensor
+    wx: Tensor
+    gy: Tensor
+    wy: Tensor
+
+
+def _next_col(x: Tensor) -> Tensor:
+    return torch.roll(x, -1, dims=-1)
+
+
+def _next_row(x: Tensor) -> Tensor:
+    return torch.cat((x[..., 1:, :], x[..., -1:, :]), dim=-2)
+
+
+def _step(n_a: Tensor, n_b: Tensor, d_a: Tensor, d_b: Tensor) -> tuple[Tensor, Tensor]:
+    n = F.normalize(n_a + n_b, dim=-3, eps=1e-8)
+    ca = -(n * d_a).sum(-3, keepdim=True)
+    cb = -(n * d_b).sum(-3, keepdim=True)
+    same = ((n_a * n_b).sum(-3, keepdim=True) - CREASE_COS).clamp(0, 1) / (1 - CREASE_COS)
+    ok = (ca > GRAZING) & (cb > GRAZING)
+    g = torch.log(ca.clamp_min(GRAZING)) - torch.log(cb.clamp_min(GRAZING))
+    return g, same * ok.to(g.dtype)
+
+
+def log_depth_steps(normal: Tensor) -> Steps:
+    """The steps of log radial depth that unit normals ``[..., 3, H, W]`` (facing the camera) imply."""
+    H, W = normal.shape[-2:]
+    d = pano.directions(H, W, normal.device, normal.dtype)
+    gx, wx = _step(normal, _next_col(normal), d, _next_col(d))
+    gy, wy = _step(normal, _next_row(normal), d, _next_row(d))
+    last = torch.zeros_like(wy)
+    last[..., -1, :] = 1
+    return Steps(gx, wx, gy, wy * (1 - last))
+
+
+def _grad(z: Tensor) -> tuple[Tensor, Tensor]:
+    return _next_col(z) - z, _next_row(z) - z
+
+
+def _div(fx: Tensor, fy: Tensor) -> Tensor:
+    """Adjoint of :func:`_grad` (fy's last row must be 0)."""
+    up = torch.cat((torch.zeros_like(fy[..., :1, :]), fy[..., :-1, :]), dim=-2)
+    return torch.roll(fx, 1, dims=-1) - fx + up - fy
+
+
+def agreement(log_depth: Tensor, steps: Steps, tau: float) -> tuple[Tensor, Tensor]:
+    """Step weights times 1 / (1 + (e / tau)^4), e the depth's own step less the normals': ~0 past
+    ``tau``, at occlusion edges, where no surface joins the two pixels (a fast falloff: a slower,
+    Cauchy one, let small objects drift ~5 % toward the wall behind them)."""
+    zx, zy = _grad(log_depth)
+    ex, ey = zx - steps.gx, zy - steps.gy
+    return steps.wx / (1 + (ex / tau) ** 4), steps.wy / (1 + (ey / tau) ** 4)
+
+
+def refine_depth(depth: Tensor, normal: Tensor, *, anchor: float = 0.02, tau: float = 0.05,
+                 iters: int = 200) -> Tensor:
+    """Radial depth ``[..., 1, H, W]`` made consistent with ``normal`` ``[..., 3, H, W]``.
+
+    Minimises ``sum w (grad z - g)^2 + anchor * sum (z - z0)^2`` over log depth z, with g the normals'
+    steps, z0 the input's log depth and w the steps' weights times their :func:`agreement` with z0 (so
+    occlusion edges stay where the depth put them). ``anchor`` sets how far (~1/sqrt(anchor) pixels)
+    the normals may reshape the depth.
+    """
+    z0 = torch.log(depth.clamp_min(1e-6))
+    steps = log_depth_steps(normal.to(z0.dtype))
+    wx, wy = agreement(z0, steps, tau)
+    def apply(z: Tensor) -> Tensor:
+        zx, zy = _grad(z)
+        return anchor * z + _div(wx * zx, wy * zy)
+    b = anchor * z0 + _div(wx * steps.gx, wy * steps.gy)
+    z = _conjugate_gradients(apply, b, z0, iters)
+    return torch.exp(z)
+
+
+def _conjugate_gradients(apply, b: Tensor, x: Tensor, iters: int, rtol: float = 1e-5) -> Tensor:
+    """Solves apply(x) = b for a symmetric positive definite operator, batched over leading dims."""
+    dims = tuple(range(-3, 0))
+    r = b - apply(x)
+    p = r
+    rr = (r * r).sum(dims, keepdim=True)
+    stop = rtol ** 2 * (b * b).sum(dims, keepdim=True)
+    for _ in range(iters):
+        if bool((rr <= stop).all()):
+            break
+        ap = apply(p)
+        alpha = rr / (p * ap).sum(dims, keepdim=True).clamp_min(1e-30)
+        x = x + alpha * p
+        r = r - alpha * ap
+        rr_new = (r * r).sum(dims, keepdim=True)
+        p = r + (rr_new / rr.clamp_min(1e-30)) * p
+        rr = rr_new
+    return x

@@ -1,0 +1,68 @@
+"""A random camera pipeline: what users' LDR panoramas went through before the loader linearised them.
+
+Exposure, white balance (a colour cast the camera did not remove), one of several tone curves
+(filmic ACES, Reinhard, plain clipping with a contrast gamma), sRGB encoding, 8 bits and, often,
+JPEG compression; then the loader's sRGB decode. The network learns that clipped, compressed and
+tinted inputs are the same room as the HDR ground truth.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from phyir.color import aces, linear_to_srgb, srgb_to_linear
+
+
+@dataclass(frozen=True)
+class CameraPipeline:
+    white_balance_stops: float = 0.3  # R and B gains 2^U(-a, a) against G
+    curves: tuple[str, ...] = ("aces", "reinhard", "clip")
+    clip_gamma: tuple[float, float] = (0.8, 1.25)  # contrast of the "clip" curve
+    p_jpeg: float = 0.5
+    jpeg_quality: tuple[int, int] = (60, 95)
+
+
+def tone_curve(x: Tensor, curve: str, gamma: float = 1.0) -> Tensor:
+    """Display-referred [0, 1] from scene-linear radiance."""
+    if curve == "aces":
+        return aces(x)
+    if curve == "reinhard":
+        return x * (1 + x / 16) / (1 + x)  # white point 4
+    if curve == "clip":
+        return x.clamp(0, 1) ** gamma
+    raise ValueError(f"unknown tone curve {curve!r}")
+
+
+def jpeg_round_trip(srgb8: np.ndarray, quality: int) -> np.ndarray:
+    """8-bit sRGB [H,W,3] through a JPEG encoder and decoder (Pillow)."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(srgb8).save(buf, format="JPEG", quality=int(quality))
+    buf.seek(0)
+    with Image.open(buf) as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def simulate_ldr(image: Tensor, exposure: float, gen: torch.Generator,
+                 camera: CameraPipeline = CameraPipeline()) -> Tensor:
+    """Linear radiance ``[3,H,W]`` as the loader would read the photograph a random camera made of it
+    at ``exposure`` (the returned image is in the exposed units; divide by ``exposure`` to undo it)."""
+    def u() -> float:
+        return float(torch.rand((), generator=gen))
+    a = camera.white_balance_stops
+    gains = torch.tensor([2.0 ** (a * (2 * u() - 1)), 1.0, 2.0 ** (a * (2 * u() - 1))])
+    curve = camera.curves[int(u() * len(camera.curves)) % len(camera.curves)]
+    g0, g1 = camera.clip_gamma
+    shown = tone_curve(image * exposure * gains[:, None, None].to(image), curve, g0 + (g1 - g0) * u())
+    enc = np.round(linear_to_srgb(shown.clamp(0, 1).permute(1, 2, 0).cpu().numpy()) * 255).astype(np.uint8)
+    if u() < camera.p_jpeg:
+        q0, q1 = camera.jpeg_quality
+        enc = jpeg_round_trip(enc, round(q0 + (q1 - q0) * u()))
+    lin = srgb_to_linear(enc.astype(np.float32) / 255.0)
+    return torch.from_numpy(np.ascontiguousarray(lin)).permute(2, 0, 1).to(image)

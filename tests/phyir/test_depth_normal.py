@@ -1,0 +1,96 @@
+"""phyir.depth_normal: the normals' log-depth steps are exact on planes, and refinement flattens a
+bent room back onto its planes (analytic box rooms)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from phyir import pano
+from phyir.depth_normal import log_depth_steps, refine_depth
+from phyir.inference import REFINE_ANCHOR, REFINE_TAU
+from phyir.learn.losses import depth_normal_loss
+
+
+def box_room(H: int, W: int, lo=(-2.5, -1.5, -5.0), hi=(3.5, 1.2, 3.0)) -> tuple[torch.Tensor, torch.Tensor]:
+    """Radial depth [1,H,W] and normals [3,H,W] of an axis-aligned box around the camera: each ray
+    leaves through the face whose plane it reaches first (independent of phyir.pano's depth code)."""
+    d = pano.directions(H, W, dtype=torch.float64)
+    lo_t = torch.tensor(lo, dtype=torch.float64)[:, None, None]
+    hi_t = torch.tensor(hi, dtype=torch.float64)[:, None, None]
+    t = torch.where(d > 0, hi_t / d.clamp_min(1e-12), lo_t / d.clamp_max(-1e-12))
+    r, axis = t.min(0)
+    n = torch.zeros(3, H, W, dtype=torch.float64).scatter_(0, axis[None], 1.0) * -torch.sign(d)
+    return r[None], n
+
+
+def _angle_deg(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(torch.rad2deg(torch.acos((a * b).sum(0).clamp(-1, 1))).mean())
+
+
+def test_steps_are_exact_on_planes_and_off_at_creases():
+    depth, normal = box_room(64, 128)
+    s = log_depth_steps(normal)
+    z = torch.log(depth)
+    zx = torch.roll(z, -1, dims=-1) - z
+    zy = torch.cat((z[..., 1:, :], z[..., -1:, :]), -2) - z
+    assert float(((zx - s.gx).abs() * s.wx).max()) < 1e-9
+    assert float(((zy - s.gy).abs() * s.wy).max()) < 1e-9
+    # steps across the box's edges (normals 90 degrees apart) are not used; nearly all others are
+    assert 0.95 < float(s.wx.mean()) < 1.0 and 0.95 < float(s.wy.mean()) < 1.0
+    assert float(s.wy[..., -1, :].abs().max()) == 0.0
+
+
+def test_refinement_flattens_a_bowl_back_onto_the_planes():
+    depth, normal = box_room(64, 128)
+    lat = pano.pixel_lonlat(64, 128, dtype=torch.float64)[1]
+    g = torch.Generator().manual_seed(0)
+    bowl = depth * (1 + 0.3 * torch.cos(lat) ** 2) * (1 + 0.03 * torch.randn(depth.shape, generator=g,
+                                                                                dtype=torch.float64))
+    fixed = refine_depth(bowl, normal, anchor=1e-4, iters=1000)
+    # the shape comes back up to the one global scale the normals can't tell
+    scale = torch.exp((torch.log(depth) - torch.log(fixed)).median())
+    rel = float(((fixed * scale - depth).abs() / depth).mean())
+    rel_bowl = float(((bowl * torch.exp((torch.log(depth) - torch.log(bowl)).median()) - depth).abs()
+                      / depth).mean())
+    assert rel < 0.5 * rel_bowl  # what is left is mostly the 3 % noise
+    assert _angle_deg(pano.normals_from_depth(fixed), normal) < 2.0
+    assert _angle_deg(pano.normals_from_depth(bowl), normal) > 30.0
+
+
+def test_refinement_keeps_consistent_depth_and_occlusion_edges():
+    depth, normal = box_room(32, 64)
+    assert torch.allclose(refine_depth(depth, normal), depth, rtol=1e-6)
+    # a box in front of the wall: the jump to it is not smoothed away by the wall's normals
+    step = depth.clone()
+    step[..., 12:20, 20:30] *= 0.5
+    fixed = refine_depth(step, normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)  # predict's settings
+    assert float((fixed[..., 12:20, 20:30] / step[..., 12:20, 20:30]).sub(1).abs().max()) < 0.01
+
+
+def test_depth_normal_loss_is_zero_when_consistent_and_grows_with_the_bend():
+    depth, normal = box_room(32, 64)
+    d, n = depth[None].float(), normal[None].float()
+    assert float(depth_normal_loss(d, n, d, n)) < 1e-5
+    lat = pano.pixel_lonlat(32, 64)[1]
+    losses = [float(depth_normal_loss(d * (1 + a * torch.cos(lat) ** 2), n, d, n)) for a in (0.1, 0.3)]
+    assert 0 < losses[0] < losses[1]
+    # gradients reach both heads
+    d2, n2 = d.clone().requires_grad_(), n.clone().requires_grad_()
+    depth_normal_loss(d2 * (1 + 0.1 * torch.cos(lat) ** 2), n2, d, n).backward()
+    assert float(d2.grad.abs().sum()) > 0 and float(n2.grad.abs().sum()) > 0
+
+
+@pytest.mark.parametrize("grazing", [True, False])
+def test_steps_ignore_grazing_views(grazing):
+    """A floor seen at the horizon has -n.d -> 0: its steps are ill-conditioned and get no weight."""
+    H, W = 32, 64
+    n = torch.zeros(3, H, W, dtype=torch.float64)
+    n[1] = 1.0
+    s = log_depth_steps(n)
+    lat = pano.pixel_lonlat(H, W, dtype=torch.float64)[1]
+    rows = (lat < -math.radians(20)) if not grazing else (lat.abs() < math.radians(3))
+    w = float(s.wx[0][rows].mean())
+    assert (w == 1.0) if not grazing else (w == 0.0)
