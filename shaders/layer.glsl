@@ -9,19 +9,22 @@
 uniform sampler2D layer;      // wraps in s (longitude), clamps in t (poles)
 uniform vec2 pano_size;       // (W, H) the layer is laid over (the probe atlas is stretched onto it)
 
-// rgb = the layer's linear value, a = 1 where the view shows the panorama
-vec4 layer_value() {
+// rgb = the linear value of the equirect texture `tex` seen here, a = 1 where the view shows the
+// panorama (any texture size: it is laid over pano_size, so a reference of another size lines up)
+vec4 layer_lookup(sampler2D tex) {
     bool inside;
     vec2 uv = view_uv(pano_size, inside);
     if (!inside) return vec4(0.0);
     vec2 st = uv / pano_size;
 #if NEAREST
-    ivec2 ts = textureSize(layer, 0);
+    ivec2 ts = textureSize(tex, 0);
     ivec2 ij = ivec2(floor(st * vec2(ts)));
     ij.x = ((ij.x % ts.x) + ts.x) % ts.x;
     ij.y = clamp(ij.y, 0, ts.y - 1);
-    return vec4(texelFetch(layer, ij, 0).rgb, 1.0);
+    return vec4(texelFetch(tex, ij, 0).rgb, 1.0);
 #else
-    return vec4(texture(layer, st).rgb, 1.0);
+    return vec4(texture(tex, st).rgb, 1.0);
 #endif
 }
+
+vec4 layer_value() { return layer_lookup(layer); }

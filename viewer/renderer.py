@@ -20,6 +20,7 @@ import moderngl
 import numpy as np
 
 from phyir.insert.views import EquirectView, PerspectiveView, View
+from viewer.compare import MODES
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 
 KINDS = {"hdr": 0, "colour": 1, "normal": 2, "scalar": 3}
@@ -42,6 +43,17 @@ class Display:
     range: tuple[float, float] = (0.0, 1.0)  # scalar: values mapped to [0, 1] of the colour map
     false_range: tuple[float, float] = (-8.0, 8.0)  # false colour: log2 luminance range
     channel: str = "rgb"                    # hdr and colour layers: one of CHANNELS (as grey)
+
+
+@dataclass
+class Compare:
+    """The view against the same layer of a reference image (``shaders/compare.glsl``)."""
+
+    mode: str                               # one of viewer.compare.MODES
+    texture: moderngl.Texture               # the reference's layer
+    split: float = 0.5                      # split: where the reference starts, fraction of the view width
+    range: tuple[float, float] = (-1.0, 1.0)  # metrics: values mapped onto the colour map
+    colormap: str = "coolwarm"              # metrics: the colour map
 
 
 @dataclass
@@ -68,6 +80,7 @@ class Frame:
     # for linear/overlay passes: "layers" (name -> texture of the shown scene), "scene" (PanoScene),
     # "marker_radius"; passes may add their own keys
     extras: dict = field(default_factory=dict)
+    compare: Compare | None = None          # drawn against a reference (one-pass path only)
 
 
 Pass = Callable[["Renderer", Frame], None]
@@ -253,7 +266,7 @@ class Renderer:
         view_defs = {"VIEW_KIND": int(isinstance(frame.view, PerspectiveView)), "NEAREST": int(frame.nearest)}
         d = frame.display
         disp_defs = {"KIND": KINDS[d.kind], "TONEMAP": TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0}
-        if self.linear_passes:
+        if self.linear_passes and frame.compare is None:
             hdr = self.hdr_target(w, h)
             hdr.use()
             hdr.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -272,12 +285,16 @@ class Renderer:
             set_uniform(prog, "hdr", 0)
             set_uniform(prog, "hdr_origin", (float(x), float(fb_h - y - h)))
         else:
+            if frame.compare is not None:
+                disp_defs["COMPARE"] = MODES.index(frame.compare.mode) + 1
             prog, vao = self.program("view.frag", **view_defs, **disp_defs)
             self.note_variant("view.frag", {**view_defs, **disp_defs}, (frame.texture, self._cmap(d)), target)
             target.use()
             ctx.viewport = (x, fb_h - y - h, w, h)
             self._set_layer(prog, frame, (x, y, w, h), fb_h)
         self.set_display(prog, frame)
+        if frame.compare is not None:
+            self._set_compare(prog, frame.compare, w)
         vao.render(moderngl.TRIANGLES, vertices=3)
         for p in self.overlay_passes:
             p(self, frame)
@@ -302,6 +319,16 @@ class Renderer:
         set_uniform(prog, "cmap", 1)
         set_uniform(prog, "background", tuple(float(c) for c in frame.background))
         set_uniform(prog, "channel", CHANNELS.index(d.channel))
+
+    def _set_compare(self, prog: moderngl.Program, c: Compare, view_w: int) -> None:
+        """The uniforms of ``shaders/compare.glsl``: the reference on unit 2, its colour map on 3."""
+        c.texture.use(2)
+        set_uniform(prog, "reference", 2)
+        self.lut(c.colormap).use(3)
+        set_uniform(prog, "compare_cmap", 3)
+        lo, hi = c.range
+        set_uniform(prog, "compare_range", (float(lo), float(hi) if hi != lo else float(lo) + 1e-6))
+        set_uniform(prog, "split_x", float(np.clip(c.split, 0.0, 1.0) * view_w))
 
     def _cmap(self, d: Display) -> moderngl.Texture:
         """The colour map a display samples (the false-colour one for false-colour HDR)."""

@@ -15,6 +15,7 @@ from phyir.errors import PhyIRError
 from viewer.app import cli_objects
 from viewer.app.common import gl_current
 from viewer.app.core import App
+from viewer.compare import MODES
 from viewer.gl import window as surfaces
 from viewer.layers import LAYERS
 from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS
@@ -58,8 +59,8 @@ def parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog="phyir-view",
         description="Inspect an indoor panorama and what PhyIR infers from it (layers, light probes).")
-    p.add_argument("path", nargs="?", help="panorama (.hdr/.exr/.png/.jpg) or scene file (.exr); "
-                                           "default: the demo scene")
+    p.add_argument("path", nargs="*", help="panoramas (.hdr/.exr/.png/.jpg) or scene files (.exr), "
+                                           "all open at once, the first shown; default: the demo scene")
     p.add_argument("--layer", choices=LAYERS, help="layer to show")
     p.add_argument("--probe", type=_uv, action="append", default=[], metavar="U,V",
                    help="pin the probe at panorama column U, row V (repeatable)")
@@ -80,9 +81,15 @@ def parser() -> argparse.ArgumentParser:
                    help="HDR and colour layers: one channel (or the luminance) as grey")
     p.add_argument("--watch", action="store_true", help="reload the file whenever it changes on disk")
     p.add_argument("--histogram", action="store_true", help="open the side panel's histogram of the layer")
-    p.add_argument("--compare", action="store_true",
-                   help="treat the file's layers as ground truth: predict all layers and compare "
-                        "(automatic for complete synthetic scenes)")
+    p.add_argument("--compare", nargs="?", const="truth", choices=("truth", *MODES), metavar="MODE",
+                   help="diff, reldiff, sqerr or split: the shown layer against the reference's "
+                        "(--reference, else the second image); alone or 'truth': treat the file's "
+                        "layers as ground truth, predict all layers and compare (automatic for "
+                        "complete synthetic scenes)")
+    p.add_argument("--reference", metavar="FILE",
+                   help="open FILE too and compare with it (--compare; default split)")
+    p.add_argument("--split", type=_bounded(0, 1, "--split"),
+                   help="split view: where the reference starts, fraction of the view's width (0..1)")
     p.add_argument("--show", choices=("prediction", "truth"),
                    help="with ground truth: which layers to show (key G)")
     p.add_argument("--gt", metavar="SCENE", help="ground-truth scene file to compare with")
@@ -116,7 +123,12 @@ def main(argv: list[str] | None = None) -> int:
         print("phyir-view: no display (DISPLAY/WAYLAND_DISPLAY unset); use --screenshot OUT.png "
               "[--headless] to render without a window", file=sys.stderr)
         return 2
-    path = args.path if args.path is not None else _demo_path()
+    paths = args.path or [_demo_path()]
+    path = paths[0]
+    if _compare_mode(args) and not args.reference and len(paths) < 2:
+        print(f"phyir-view: --compare {_compare_mode(args)} needs a reference: --reference FILE or a "
+              "second image", file=sys.stderr)
+        return 2
     try:
         app = App(args.size or ((1280, 720) if scripted else (1400, 820)), headless=headless,
                   ui=not args.no_ui, visible=not scripted, threads=args.threads,
@@ -131,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
             from phyir import io
 
             gt = io.load_scene(args.gt)
-        app.open(path, gt=gt, compare=True if args.compare else None)
+        app.open(path, gt=gt, compare=True if args.compare == "truth" else None)
+        open_images(app, args)
         if args.bench:
             return _bench(app, args)
         if not scripted:
@@ -154,6 +167,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         app.close()
+
+
+def _compare_mode(args) -> str | None:
+    """The comparison asked for: --compare MODE, or split for --reference/--split alone."""
+    if args.compare in MODES:
+        return args.compare
+    return "split" if args.reference or args.split is not None else None
+
+
+def open_images(app: App, args) -> None:
+    """The other images of the command line (read once the first is in) and the reference: the
+    --reference file, else the second image when a comparison is asked for."""
+    for p in args.path[1:]:
+        app.queue_image(p)
+    if args.reference:
+        app.set_reference(app.images.index(app.queue_image(args.reference)))
+    elif _compare_mode(args) and len(app.images) > 1:
+        app.set_reference(1)
+
+
+def _apply_compare(app: App, args, wait: bool) -> None:
+    mode = _compare_mode(args)
+    if mode is None:
+        return
+    if app.reference is None:  # its file could not be read: app.error says why
+        raise PhyIRError(f"--reference {args.reference or args.path[1]}: {app.error or 'not open'}")
+    if wait and app.compare_problem(app.layer):
+        raise PhyIRError(f"--compare {mode}: {app.compare_problem(app.layer)}")
+    app.set_compare(mode)
+    if args.split is not None:
+        app.set_split(args.split)
 
 
 def apply_args(app: App, args, wait: bool) -> None:
@@ -180,6 +224,7 @@ def apply_args(app: App, args, wait: bool) -> None:
             eq.center = args.center
     if args.show:
         app.set_source(args.show == "truth")
+    _apply_compare(app, args, wait)
     if args.exposure is not None:
         app.set_exposure(args.exposure)
     if args.tonemap:

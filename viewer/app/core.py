@@ -5,8 +5,9 @@ imgui panels (``viewer/ui/``) call the same methods a script does (``open``, ``s
 ``pin_probe``, ``set_view``, ...), then ``frame()`` draws and ``screenshot()`` reads the result.
 All GL work happens on the thread that created the App; loading, inference and re-rendering run in
 ``viewer.worker``.  The App's code is split by concern: state and lifecycle here, and the parts it
-is made of: file I/O (``files``), worker events (``events``), what is displayed (``display``), the
-view and mouse (``camera``), pinned probes (``pins``) and inserted objects (``objects``).
+is made of: the open images (``images``) and the comparison with a reference (``comparison``),
+file I/O (``files``), worker events (``events``), what is displayed (``display``), the view and
+mouse (``camera``), pinned probes (``pins``) and inserted objects (``objects``).
 """
 
 from __future__ import annotations
@@ -28,9 +29,11 @@ from phyir.insert.views import EquirectView, PerspectiveView
 from phyir.scene import PanoScene
 from viewer.app.camera import Camera
 from viewer.app.common import BACKGROUND, Message, ScalarDisplay, gl_current
+from viewer.app.comparison import Comparison
 from viewer.app.display import DisplaySettings
 from viewer.app.events import WorkerEvents
 from viewer.app.files import FileActions
+from viewer.app.images import ImageList
 from viewer.app.objects import InsertedObjects
 from viewer.app.pins import Pins
 from viewer.gl import window as surfaces
@@ -45,7 +48,7 @@ from viewer.worker import Worker, preload
 SWITCH_INTERVAL_S = 0.0001
 
 
-class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObjects):
+class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObjects):
     """The viewer.  ``headless=True`` renders through a standalone EGL context (no window/input);
     ``ui=False`` draws only the view (no imgui).  ``predict``/``render`` replace ``phyir.predict``
     and ``phyir.shading.render.render_scene`` (tests); ``recent=False`` disables the recent-files list."""
@@ -117,6 +120,8 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
         self._fit_pending = True
         self._redraw = 2
         self._last_uploaded = False
+        self._init_images()  # several images open (viewer.app.images), a reference to compare with
+        self._init_comparison()
         self._attach_objects()
         self.gui = None
         if ui:
@@ -285,6 +290,7 @@ class App(FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObje
                 self.gui.shutdown()
                 self.gui = None
             self._clear()
+            self._close_images()
             self._detach_objects()
             self.renderer.release()
         self.surface.close()

@@ -137,19 +137,30 @@ class DisplaySettings:
         near = self.view_kind == "equirect" and self.view.zoom > NEAREST_ZOOM
         if layer == "probes":  # the atlas has its own resolution: nearest once its texels are big
             near = self.view_kind == "equirect" and self.view.zoom * tex.size[0] / self.size[1] > NEAREST_ZOOM
+        versus = self._compare_spec(layer)  # viewer.app.comparison: against the reference
+        extras = {"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene,
+                  "insert": layer == "image" and versus is None,
+                  "reference_version": versus[1] if versus else 0}
         return Frame(texture=tex, pano_size=self.size, view=self.view, display=self.display(layer),
-                     nearest=near, markers=self.markers(), background=BACKGROUND,
-                     extras={"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene,
-                             "insert": layer == "image"})
+                     nearest=near, markers=self.markers(), background=BACKGROUND, extras=extras,
+                     compare=versus[0] if versus else None)
 
     def _view_key(self, spec: Frame, rect) -> tuple | None:
         """Everything the view's picture depends on (the renderer redraws it when this changes);
         None when linear passes (e.g. inserted objects) draw: they keep their own state."""
-        if self.renderer.linear_passes or self.objects_active():
+        if (self.renderer.linear_passes or self.objects_active()) and spec.compare is None:
             return None
         fields = dataclasses.astuple
         version = next((self._tex_version.get(k, 0) for k, t in self._textures.items()
                         if t is spec.texture), 0)
         return (id(spec.texture), version, spec.pano_size, fields(spec.view), fields(spec.display),
                 spec.nearest, tuple(map(fields, spec.markers)), spec.background, spec.extras["marker_radius"],
-                tuple(rect[2:]))
+                tuple(rect[2:]), _compare_key(spec))
+
+
+def _compare_key(spec: Frame) -> tuple | None:
+    """What the view's picture takes from the comparison (the texture by identity and upload count)."""
+    c = spec.compare
+    if c is None:
+        return None
+    return c.mode, id(c.texture), spec.extras["reference_version"], c.split, c.range, c.colormap

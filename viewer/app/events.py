@@ -16,8 +16,10 @@ class WorkerEvents:
         """Apply the worker's events; True if anything changed."""
         self.check_file_changed()
         events = self.worker.poll()
-        for event in events:
-            self._handlers[type(event)](self, event)
+        if events:
+            with self._job_shown(events):  # viewer.app.images: the image the job is for
+                for event in events:
+                    self._handlers[type(event)](self, event)
         return bool(events)
 
     def _on_loaded(self, loaded: Loaded) -> None:

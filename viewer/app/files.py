@@ -30,19 +30,20 @@ class FileActions:
     """Part of :class:`viewer.app.App`: opening and saving."""
 
     def on_drop(self, paths: list[str]) -> None:
-        """Files dropped on the window: open the first."""
-        if paths:
-            self.open(paths[0])
-            self.request_redraw()
+        """Files dropped on the window: added to the open images, the first shown."""
+        for k, path in enumerate(paths):
+            self.add_image(path) if k == 0 else self.queue_image(path)
+        self.request_redraw()
 
     # -- opening ------------------------------------------------------------------------------
     @gl_current
     def open(self, source: str | os.PathLike | PanoScene, *, gt: PanoScene | None = None,
-             name: str | None = None, compare: bool | None = None) -> None:
+             name: str | None = None, compare: bool | None = None, model: bool | None = None) -> None:
         """Open a panorama/scene file or a PanoScene; cancels a running job.  The file is read in the
         worker; its layers appear when read, the model's when computed.  ``gt``: a ground-truth
         scene to compare with; ``compare``: treat the file's own layers as ground truth and predict
-        all layers (default: only for complete synthetic scenes)."""
+        all layers (default: only for complete synthetic scenes); ``model=False``: only read it
+        (an image in the background, viewer.app.images)."""
         self.worker.cancel()
         self.error = None
         if isinstance(source, PanoScene):
@@ -60,7 +61,8 @@ class FileActions:
         self.busy = True
         self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
         self._job_start = time.perf_counter()
-        self.worker.start(source, name=name, compare=compare, run_model=self.run_model)
+        run_model = self.run_model if model is None else model and self.run_model
+        self.worker.start(source, name=name, compare=compare, run_model=run_model)
         self._title()
 
     @property

@@ -1,6 +1,6 @@
 """The imgui interface: :class:`Gui` owns the imgui context and its frame; the menu bar
-(``menu_bar``), side panel (``side_panel``), status bar (``status_bar``) and the view's mouse and
-keyboard handling (``input``) are the parts it is made of.
+(``menu_bar``), side panel (``side_panel``, with the open images: ``images_panel``), status bar
+(``status_bar``) and the view's mouse and keyboard handling (``input``) are the parts it is made of.
 
 Everything here only reads the :class:`~viewer.app.App`'s state and calls its methods, so a click
 and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL calls
@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from viewer.ui.images_panel import ImagesPanel
 from viewer.ui.input import ViewInput
 from viewer.ui.menu_bar import MenuBar
 from viewer.ui.side_panel import SidePanel
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["PANEL_WIDTH", "Gui"]
 
 
-class Gui(MenuBar, ViewInput, SidePanel, StatusBar):
+class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
     """The imgui context and its frame; the interface is built by the parts it is made of."""
 
     def __init__(self, app: App):
@@ -60,6 +61,7 @@ class Gui(MenuBar, ViewInput, SidePanel, StatusBar):
         self._path_popup = False     # the fallback "open path" popup
         self._path_text = ""
         self._dragged = False
+        self._split_drag = False  # the split view's divide is being dragged
         self._show_help = False
         self._lut_cache: dict[str, np.ndarray] = {}
         self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests

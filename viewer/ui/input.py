@@ -31,7 +31,8 @@ class ViewInput:
         mx, my = (io.mouse_pos.x - x / s) * s, (io.mouse_pos.y - y / s) * s  # framebuffer px in the view
         hovered = imgui.is_item_hovered()
         # inserted objects first: the gizmo, click-to-drop and dragging take the mouse from the view
-        took = app.objects.gizmo((x / s, y / s, w / s, h / s), (w, h))
+        took = self._split_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(), mx, w)
+        took = app.objects.gizmo((x / s, y / s, w / s, h / s), (w, h)) or took
         took = app.objects.view_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(),
                                       imgui.is_item_deactivated(), bool(io.mouse_delta.x or io.mouse_delta.y),
                                       mx, my) or took
@@ -106,6 +107,8 @@ class ViewInput:
                 self._quit()
             if pressed(K.r, False) and app.path is not None:
                 app.reload()
+            if pressed(K.w, False):
+                app.close_image()
             return
         digits = [K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9, K._0, K.minus]
         for name, key in zip(LAYERS, digits):
@@ -115,9 +118,10 @@ class ViewInput:
             app.set_exposure(app.hdr.exposure + (-EV_STEP if shift else EV_STEP))
         if pressed(K.o):
             app.set_offset(app.hdr.offset + (-OFFSET_STEP if shift else OFFSET_STEP))
-        if pressed(K.r, False):
+        if pressed(K.r, False) and not shift:
             app.set_exposure(0.0)
             app.set_offset(0.0)
+        self._image_keys(shift)  # [ ] PageUp/PageDown, Shift+R, D (viewer.ui.images_panel)
         if pressed(K.x, False):
             app.set_channel(_cycle(CHANNELS, app.hdr.channel, -1 if shift else 1))
         if pressed(K.t, False):

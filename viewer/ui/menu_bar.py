@@ -8,7 +8,9 @@ import shutil
 import sys
 
 from phyir.errors import PhyIRError
+from viewer.compare import MODES
 from viewer.layers import KEYS, LAYERS
+from viewer.ui.images_panel import MODE_NAMES
 from viewer.ui.widgets import imgui
 
 
@@ -28,10 +30,12 @@ class MenuBar:
             if imgui.begin_menu("Recent files", bool(recent)):
                 for f in recent:
                     if imgui.menu_item_simple(f):
-                        app.open(f)
+                        app.add_image(f)
                 imgui.end_menu()
             if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.path is not None):
                 app.reload()
+            if imgui.menu_item_simple("Close image", "Ctrl+W", enabled=app.entry.source is not None):
+                app.close_image()
             _, app.watch = imgui.menu_item("Reload when the file changes", "", app.watch)
             imgui.separator()
             if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
@@ -52,6 +56,9 @@ class MenuBar:
             if imgui.menu_item_simple("1:1", "Z"):
                 app.set_view("equirect")
                 app.one_to_one()
+            imgui.end_menu()
+        if imgui.begin_menu("Images"):
+            self._images_menu()
             imgui.end_menu()
         if imgui.begin_menu("Layer"):
             avail = app.available()
@@ -89,7 +96,7 @@ class MenuBar:
             enter, self._path_text = imgui.input_text("##path", self._path_text,
                                                       imgui.InputTextFlags_.enter_returns_true)
             if (imgui.button("Open") or enter) and self._path_text.strip():
-                app.open(os.path.expanduser(self._path_text.strip()))
+                app.add_image(os.path.expanduser(self._path_text.strip()))
                 imgui.close_current_popup()
             imgui.same_line()
             if imgui.button("Cancel") or imgui.is_key_pressed(imgui.Key.escape):
@@ -106,14 +113,33 @@ class MenuBar:
 
         start = os.path.dirname(self.app.path) if self.app.path else os.getcwd()
         filters = ["Panoramas and scenes", "*.hdr *.exr *.png *.jpg *.jpeg", "All files", "*"]
-        self._dialog = pfd.open_file("Open a panorama or scene", start, filters)
+        self._dialog = pfd.open_file("Open panoramas or scenes", start, filters, pfd.opt.multiselect)
 
     def _poll_dialog(self) -> None:
         if self._dialog is not None and self._dialog.ready(0):
             files = self._dialog.result()
             self._dialog = None
-            if files:
-                self.app.open(files[0])
+            for k, f in enumerate(files or ()):  # added to the open images, the first shown
+                self.app.add_image(f) if k == 0 else self.app.queue_image(f)
+
+    def _images_menu(self) -> None:
+        """The open images (select one), switching, the reference and the comparison modes."""
+        app = self.app
+        for k, e in enumerate(app.images):
+            if imgui.menu_item_simple(f"{k + 1} {app.image_label(e)}", "", k == app.current):
+                app.select_image(k)
+        imgui.separator()
+        many = len(app.images) > 1
+        if imgui.menu_item_simple("Next image", "] / PageDown", enabled=many):
+            app.next_image(1)
+        if imgui.menu_item_simple("Previous image", "[ / PageUp", enabled=many):
+            app.next_image(-1)
+        if imgui.menu_item_simple("Use as reference", "Shift+R", app.reference is app.entry):
+            app.set_reference(None if app.reference is app.entry else app.current)
+        for mode in (None, *MODES):
+            if imgui.menu_item_simple(f"Compare: {MODE_NAMES[mode]}", "D", app.compare_mode == mode,
+                                      app.reference is not None):
+                app.set_compare(mode)
 
     def _save_screenshot(self) -> None:
         self.app.request_screenshot()
@@ -145,6 +171,11 @@ class MenuBar:
 HELP = (
     ("1-9, 0, -", "layers: " + ", ".join(LAYERS)),
     ("G", "prediction / ground truth"),
+    ("] / [", "next / previous image (also PageDown / PageUp)"),
+    ("Shift+R", "the image shown is the reference (again: none)"),
+    ("D / Shift+D", "compare with the reference: diff, reldiff, sqerr, split, off"),
+    ("drag the line", "split view: move the divide"),
+    ("Ctrl+W", "close the image shown"),
     ("E / Shift+E", "exposure +/- 0.5 EV"),
     ("O / Shift+O", "offset +/- 0.05"),
     ("R", "reset exposure and offset"),
@@ -156,7 +187,7 @@ HELP = (
     ("click", "pin the probe under the mouse"),
     ("Backspace", "remove the last probe"),
     ("Esc", "dismiss the error / cancel the model"),
-    ("Ctrl+O", "open a file (or drop it on the window)"),
+    ("Ctrl+O", "open files, added to the images (or drop them on the window)"),
     ("X / Shift+X", "channel: RGB, R, G, B, luminance"),
     ("Ctrl+R", "reload the file (File menu: also whenever it changes)"),
     ("F12", "save a screenshot next to the file"),

@@ -1,5 +1,5 @@
-"""The side panel: layers, display settings, view controls, the read-out under the mouse, the
-pinned probes, the inserted objects and the messages."""
+"""The side panel: the open images and the reference, layers, display settings, view controls, the
+read-out under the mouse, the pinned probes, the inserted objects and the messages."""
 
 from __future__ import annotations
 
@@ -34,6 +34,8 @@ class SidePanel:
             imgui.same_line()
             if imgui.button("Cancel"):
                 app.cancel()
+        if imgui.collapsing_header(f"Images ({len(app.images)})###images", imgui.TreeNodeFlags_.default_open):
+            self._images_section()
         if imgui.collapsing_header("Layers", imgui.TreeNodeFlags_.default_open):
             self._layers()
         if imgui.collapsing_header("Display", imgui.TreeNodeFlags_.default_open):

@@ -1,4 +1,5 @@
-"""The status bar (mouse position, value, frame time, the last message) and the error banner."""
+"""The status bar (which image of how many, the comparison, mouse position, value, frame time, the
+last message) and the error banner."""
 
 from __future__ import annotations
 
@@ -16,6 +17,10 @@ class StatusBar:
         imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(6 * self.scale, 3 * self.scale))
         imgui.begin("##status", None, FLAGS_FIXED | imgui.WindowFlags_.no_scrollbar)
         parts = []
+        if len(app.images) > 1:
+            parts.append(f"image {app.current + 1}/{len(app.images)} {app.image_label(app.entry)}")
+        if app.compare_mode is not None and app.reference is not None:
+            parts.append(f"{app.compare_mode} vs {app.image_label(app.reference)}")
         if app.hover is not None and app.size is not None:
             u, v = app.hover
             vals = app.pin_values(u, v).get(app.layer)
