@@ -41,6 +41,23 @@ def _uv(text: str) -> tuple[float, float]:
     return u, v
 
 
+def _listen(text: str) -> tuple[str, int]:
+    """``[HOST:]PORT`` of the control socket; HOST must be loopback (viewer.remote)."""
+    from viewer.remote import loopback_host
+
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected [HOST:]PORT (e.g. 5151), got {text!r}") from None
+    if not 0 <= number <= 65535:
+        raise argparse.ArgumentTypeError(f"port {number} out of range (0..65535; 0: any free port)")
+    try:
+        return loopback_host(host or "127.0.0.1"), number
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def _bounded(lo: float, hi: float, what: str):
     """An argparse type: a finite float in [lo, hi]."""
     def parse(text: str) -> float:
@@ -79,6 +96,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--colormap", choices=COLORMAPS, help="colour map of scalar layers")
     p.add_argument("--channel", choices=CHANNELS,
                    help="HDR and colour layers: one channel (or the luminance) as grey")
+    p.add_argument("--listen", type=_listen, metavar="[HOST:]PORT",
+                   help="accept commands (JSON lines: open, layer, screenshot, ...; viewer/client.py) on "
+                        "a TCP port of 127.0.0.1 (loopback only; 0: any free port, printed)")
     p.add_argument("--watch", action="store_true", help="reload the file whenever it changes on disk")
     p.add_argument("--histogram", action="store_true", help="open the side panel's histogram of the layer")
     p.add_argument("--compare", nargs="?", const="truth", choices=("truth", *MODES), metavar="MODE",
@@ -100,7 +120,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--screenshot", metavar="OUT.png", help="render once, save a PNG and exit")
     p.add_argument("--size", type=_size, default=None, metavar="WxH", help="window size (default 1400x820)")
     p.add_argument("--headless", action="store_true",
-                   help="render through EGL without a window (with --screenshot)")
+                   help="render through EGL without a window (with --screenshot, --bench or --listen)")
     p.add_argument("--no-ui", action="store_true", help="with --screenshot: only the view, no panels")
     p.add_argument("--timeout", type=options.number(0.1, 86400), default=600.0,
                    help="with --screenshot: longest wait for loading and the model (s)")
@@ -115,13 +135,16 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     scripted = bool(args.screenshot or args.bench)
-    if args.headless and not scripted:
-        print("phyir-view: --headless needs --screenshot OUT.png (or --bench)", file=sys.stderr)
+    if args.listen and scripted:
+        print("phyir-view: --listen runs until closed: not with --screenshot or --bench", file=sys.stderr)
+        return 2
+    if args.headless and not (scripted or args.listen):
+        print("phyir-view: --headless needs --screenshot OUT.png (or --bench, --listen)", file=sys.stderr)
         return 2
     headless = args.headless or (scripted and not surfaces.has_display())
     if not headless and not surfaces.has_display():
         print("phyir-view: no display (DISPLAY/WAYLAND_DISPLAY unset); use --screenshot OUT.png "
-              "[--headless] to render without a window", file=sys.stderr)
+              "[--headless] to render without a window (or --headless --listen PORT)", file=sys.stderr)
         return 2
     paths = args.path or [_demo_path()]
     path = paths[0]
@@ -132,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         app = App(args.size or ((1280, 720) if scripted else (1400, 820)), headless=headless,
                   ui=not args.no_ui, visible=not scripted, threads=args.threads,
-                  recent=False if scripted else None, run_model=not args.no_model,
+                  recent=False if scripted or headless else None, run_model=not args.no_model,
                   weights=args.weights, device=args.device)
     except Exception as e:  # noqa: BLE001 - no GL: say so in one line
         print(f"phyir-view: cannot create an OpenGL 3.3 context: {e}", file=sys.stderr)
@@ -149,8 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             return _bench(app, args)
         if not scripted:
             apply_args(app, args, wait=False)
-            app.run()
-            return 0
+            return _interactive(app, args)
         if not app.wait_idle(args.timeout):
             print(f"phyir-view: {path}: still loading after {args.timeout:g} s", file=sys.stderr)
             return 2
@@ -167,6 +189,26 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         app.close()
+
+
+def _interactive(app: App, args) -> int:
+    """The window's loop, or with --headless --listen the control socket's until ``quit`` or Ctrl+C."""
+    if args.listen:
+        try:
+            host, port = app.listen(*args.listen)
+        except OSError as e:
+            where = f"{args.listen[0]}:{args.listen[1]}"
+            print(f"phyir-view: --listen {where}: {e.strerror or e}", file=sys.stderr)
+            return 2
+        print(f"phyir-view: listening on {host}:{port}", flush=True)
+    if app.window is None:
+        try:
+            app.serve_until(lambda: app.quit_requested)
+        except KeyboardInterrupt:
+            pass
+        return 0
+    app.run()
+    return 0
 
 
 def _compare_mode(args) -> str | None:

@@ -7,7 +7,8 @@ All GL work happens on the thread that created the App; loading, inference and r
 ``viewer.worker``.  The App's code is split by concern: state and lifecycle here, and the parts it
 is made of: the open images (``images``) and the comparison with a reference (``comparison``),
 file I/O (``files``), worker events (``events``), what is displayed (``display``), the view and
-mouse (``camera``), pinned probes (``pins``) and inserted objects (``objects``).
+mouse (``camera``), pinned probes (``pins``), inserted objects (``objects``) and the control socket
+(``remote``).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from viewer.app.files import FileActions
 from viewer.app.images import ImageList
 from viewer.app.objects import InsertedObjects
 from viewer.app.pins import Pins
+from viewer.app.remote import Remote
 from viewer.gl import window as surfaces
 from viewer.layers import LAYERS, SPECS
 from viewer.probes import Pin
@@ -48,7 +50,8 @@ from viewer.worker import Worker, preload
 SWITCH_INTERVAL_S = 0.0001
 
 
-class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObjects):
+class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObjects,
+          Remote):
     """The viewer.  ``headless=True`` renders through a standalone EGL context (no window/input);
     ``ui=False`` draws only the view (no imgui).  ``predict``/``render`` replace ``phyir.predict``
     and ``phyir.shading.render.render_scene`` (tests); ``recent=False`` disables the recent-files list."""
@@ -264,23 +267,15 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self._redraw = max(self._redraw, frames)
 
     def run(self) -> None:
-        """The interactive loop: draws only when something changed (input, worker, animation)."""
+        """The interactive loop: draws only when something changed (input, worker, animation, a
+        command on the control socket: viewer.app.remote)."""
         assert self.window is not None, "run() needs a window"
-        while not self.surface.should_close():
-            changed = self.poll()
-            if changed or self._redraw > 0 or self.busy or self._pending or \
-                    (self.gui is not None and self.gui.animating()):
-                self.frame()
-            if self._redraw > 0 or self._pending:
-                timeout = 0.0
-            elif self.busy or (self.gui is not None and self.gui.animating()):
-                timeout = 0.1  # progress animation, slow: leaves the CPU to the model
-            else:
-                timeout = 1.0  # idle: sleep until an event (the worker wakes us too)
-            self.surface.wait(timeout)
+        while not (self.surface.should_close() or self.quit_requested):
+            self.wait_events(self.step())
 
     def close(self) -> None:
-        """Stop the worker and free the GL resources, the UI and the window."""
+        """Stop the control socket and the worker and free the GL resources, the UI and the window."""
+        self._stop_remote()
         self.worker.cancel()
         self.worker.set_wake(None)
         self.worker.join(10.0)  # let torch finish its op: exiting under it aborts the process
