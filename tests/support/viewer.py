@@ -49,3 +49,18 @@ class FakeModel:
             raise RuntimeError("the network exploded")
         out = {n: getattr(self.truth, n) * (1.1 if n == "probes" else 1.0) for n in outputs}
         return PanoScene(image=scene.image, **out)
+
+
+def press(app, key, shift: bool = False) -> None:
+    """A key press (and release) through imgui's input queue, a frame each, as a window would."""
+    from imgui_bundle import imgui
+
+    io = app.gui.io
+    if shift:
+        io.add_key_event(imgui.Key.mod_shift, True)
+    io.add_key_event(key, True)
+    app.frame()
+    io.add_key_event(key, False)
+    if shift:
+        io.add_key_event(imgui.Key.mod_shift, False)
+    app.frame()

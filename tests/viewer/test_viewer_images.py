@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from support.scenes import box_room
-from support.viewer import FakeModel, cheap_render
+from support.viewer import FakeModel, cheap_render, press
 
 from phyir.errors import PhyIRError
 from phyir.scene import PanoScene
@@ -183,21 +183,6 @@ def ui_app(egl, model):
     a = App((900, 500), headless=True, recent=False, predict=model, render=cheap_render)
     yield a
     a.close()
-
-
-def press(app, key, shift: bool = False) -> None:
-    """A key press through imgui's input queue (as tests/viewer/test_viewer_window.py's)."""
-    from imgui_bundle import imgui
-
-    io = app.gui.io
-    if shift:
-        io.add_key_event(imgui.Key.mod_shift, True)
-    io.add_key_event(key, True)
-    app.frame()
-    io.add_key_event(key, False)
-    if shift:
-        io.add_key_event(imgui.Key.mod_shift, False)
-    app.frame()
 
 
 def test_keys_switch_images_choose_the_reference_and_the_mode_and_the_divide_drags(ui_app):

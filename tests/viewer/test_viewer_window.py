@@ -17,7 +17,7 @@ _surfaces.prefer_egl()  # same process as the headless tests: PyOpenGL talks EGL
 
 from support.paths import REPO  # noqa: E402
 from support.scenes import box_room  # noqa: E402
-from support.viewer import cheap_render  # noqa: E402
+from support.viewer import cheap_render, press  # noqa: E402
 
 pytestmark = pytest.mark.window
 
@@ -41,20 +41,6 @@ def app(display):
         pytest.skip(f"cannot open a window: {e}")
     yield a
     a.close()
-
-
-def press(app, key, shift=False):
-    from imgui_bundle import imgui
-
-    io = app.gui.io
-    if shift:
-        io.add_key_event(imgui.Key.mod_shift, True)
-    io.add_key_event(key, True)
-    app.frame()
-    io.add_key_event(key, False)
-    if shift:
-        io.add_key_event(imgui.Key.mod_shift, False)
-    app.frame()
 
 
 def click(app, x, y):

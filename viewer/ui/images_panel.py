@@ -26,7 +26,7 @@ class ImagesPanel:
         if len(app.images) < 2:
             imgui.text_disabled("File > Open adds images; [ ] switch")
         names = ["none"] + [f"{k + 1} {app.image_label(e)}" for k, e in enumerate(app.images)]
-        ch, i = imgui.combo("reference (Shift+R)", 0 if ref is None else ref + 1, names)
+        ch, i = imgui.combo("ref (Shift+R)", 0 if ref is None else ref + 1, names)
         if ch:
             app.set_reference(None if i == 0 else i - 1)
         if app.reference is None:
@@ -46,7 +46,7 @@ class ImagesPanel:
             ch, x = imgui.slider_float("split", app.split, 0.0, 1.0, "%.2f")
             if ch:
                 app.set_split(x)
-            imgui.text_disabled("left: this image, right: the reference (drag the line)")
+            imgui.text_disabled("left: this, right: reference; drag the line")
         elif app.compare_mode in METRICS:
             spec = app.frame_spec()
             if spec is None or spec.compare is None:
