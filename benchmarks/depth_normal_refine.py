@@ -66,7 +66,7 @@ def main() -> None:
     print("network depth, its normals:    ", score(preds, lambda d, n: (d, pano.normals_from_depth(d))))
     for anchor, tau in itertools.product((1e-2, 3e-3, 1e-3), (0.01, 0.02, 0.05)):
         def refined(d, n, anchor=anchor, tau=tau):
-            return refine_depth(d.double(), n.double(), anchor=anchor, tau=tau).float()
+            return refine_depth(d, n, anchor=anchor, tau=tau)  # float32, as predict
         r = score(preds, lambda d, n: (refined(d, n), n))
         rn = score(preds, lambda d, n: (d, pano.normals_from_depth(refined(d, n))))
         print(f"anchor {anchor:g} tau {tau:g}: refined depth, network normals {r}; "
