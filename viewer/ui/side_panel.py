@@ -34,7 +34,11 @@ class SidePanel:
             imgui.same_line()
             if imgui.button("Cancel"):
                 app.cancel()
-        if imgui.collapsing_header(f"Images ({len(app.images)})###images", imgui.TreeNodeFlags_.default_open):
+        n = len(app.images)
+        if n != getattr(self, "_images_counted", None):  # shut for one image (room for the layers),
+            imgui.set_next_item_open(n > 1)  # opened when a second one arrives
+            self._images_counted = n
+        if imgui.collapsing_header(f"Images ({n})###images"):
             self._images_section()
         if imgui.collapsing_header("Layers", imgui.TreeNodeFlags_.default_open):
             self._layers()
