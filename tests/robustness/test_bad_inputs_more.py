@@ -26,8 +26,7 @@ from phyir import io
 from phyir.cli import main as cli
 from phyir.errors import InputError
 from phyir.io import exr, ldr, rgbe
-from phyir.learn.weights import save_weights
-from phyir.nets import ModelConfig, PhyIRModel
+from phyir.nets import ModelConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 trimesh = pytest.importorskip("trimesh")
@@ -162,15 +161,6 @@ def test_corrupt_mesh_corpus_never_crashes(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def weights(tmp_path_factory):
-    torch.manual_seed(0)
-    model = PhyIRModel(ModelConfig.named("lite", probe_size=(8, 16))).eval()
-    folder = tmp_path_factory.mktemp("weights")
-    path = save_weights(model, folder / "tiny.safetensors", {"data": {"resolution": "32x64"}})
-    return model, path
-
-
-@pytest.fixture(scope="module")
 def pano_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("pano") / "room.hdr"
     io.save_panorama(tiny_scene(4, H=32, W=64).image, path)
@@ -211,35 +201,35 @@ def bad_weights(folder, good) -> dict[str, tuple[object, str]]:
     return out
 
 
-def test_unreadable_and_mismatched_weights_through_predict(tmp_path, weights, pano_file):
-    cases = bad_weights(tmp_path, weights)
-    assert "lnet.head.0.weight" in weights[0].state_dict()  # the tensor "wrong shape" replaces
+def test_unreadable_and_mismatched_weights_through_predict(tmp_path, tiny_weights, pano_file):
+    cases = bad_weights(tmp_path, tiny_weights)
+    assert "lnet.head.0.weight" in tiny_weights[0].state_dict()  # the tensor "wrong shape" replaces
     for path, msg in cases.values():
         with pytest.raises(InputError, match=msg) as e:
             phyir.predict(pano_file, weights=path)
         one_line_naming(e.value, path)
-    s = phyir.predict(pano_file, weights=weights[1])  # the good file works
+    s = phyir.predict(pano_file, weights=tiny_weights[1])  # the good file works
     assert s.meta["predict.net_size"] == "32x64"
 
 
-def test_weights_sidecar_missing_or_corrupt(tmp_path, weights, pano_file):
+def test_weights_sidecar_missing_or_corrupt(tmp_path, tiny_weights, pano_file):
     import shutil
 
     w = tmp_path / "w.safetensors"
-    shutil.copy(weights[1], w)  # no sidecar: the default network size
+    shutil.copy(tiny_weights[1], w)  # no sidecar: the default network size
     s = phyir.predict(pano_file, weights=w, outputs=["depth"])
     assert s.meta["predict.net_size"] == "32x64"  # the default, capped at the input's size
     w2 = tmp_path / "w2.safetensors"
-    shutil.copy(weights[1], w2)
+    shutil.copy(tiny_weights[1], w2)
     w2.with_suffix(".json").write_text("{truncated")
     with pytest.warns(UserWarning, match=r"w2.json: unreadable weights sidecar"):
         s = phyir.predict(pano_file, weights=w2, outputs=["depth"])
     assert torch.isfinite(s.depth).all()
 
 
-def test_cli_predict_bad_weights_and_bad_input_write_nothing(tmp_path, weights, pano_file, capsys):
+def test_cli_predict_bad_weights_and_bad_input_write_nothing(tmp_path, tiny_weights, pano_file, capsys):
     (tmp_path / "w").mkdir()
-    cases = bad_weights(tmp_path / "w", weights)
+    cases = bad_weights(tmp_path / "w", tiny_weights)
     out_dir = tmp_path / "out"
     out_dir.mkdir()
     for name, (path, _) in cases.items():
@@ -251,12 +241,12 @@ def test_cli_predict_bad_weights_and_bad_input_write_nothing(tmp_path, weights, 
     corrupt = tmp_path / "corrupt.exr"
     corrupt.write_bytes(exr.MAGIC + b"\x02\0\0\0garbage")
     out = out_dir / "c.exr"
-    assert cli(["predict", str(corrupt), "-o", str(out), "--weights", str(weights[1]), "-q"]) == 2
+    assert cli(["predict", str(corrupt), "-o", str(out), "--weights", str(tiny_weights[1]), "-q"]) == 2
     assert "corrupt or truncated OpenEXR header" in capsys.readouterr().err
     assert not out.exists() and not leftovers(out_dir)
 
 
-def test_interrupted_write_leaves_no_partial_output(tmp_path, weights, pano_file, monkeypatch):
+def test_interrupted_write_leaves_no_partial_output(tmp_path, tiny_weights, pano_file, monkeypatch):
     """Ctrl-C while the scene file is being written: no output, no temporary; an existing output
     stays as it was."""
     out = tmp_path / "scene.exr"
@@ -269,10 +259,10 @@ def test_interrupted_write_leaves_no_partial_output(tmp_path, weights, pano_file
         raise KeyboardInterrupt
 
     monkeypatch.setattr(exr, "write_parts", half_then_interrupt)
-    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(weights[1]), "-q"]) == 130
+    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(tiny_weights[1]), "-q"]) == 130
     assert not out.exists() and not leftovers(tmp_path)
     out.write_bytes(b"previous result")
-    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(weights[1]), "-q"]) == 130
+    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(tiny_weights[1]), "-q"]) == 130
     assert out.read_bytes() == b"previous result" and not leftovers(tmp_path)
 
 
@@ -397,19 +387,19 @@ def test_panorama_at_the_size_limit_loads_and_predict_refuses_it(tmp_path):
     print(f"8192x16384: loaded in {seconds} s, peak {peak_mb} MB")
 
 
-def test_predict_refuses_inputs_over_its_size_limit(tmp_path, weights, pano_file, monkeypatch, capsys):
+def test_predict_refuses_inputs_over_its_size_limit(tmp_path, tiny_weights, pano_file, monkeypatch, capsys):
     from phyir import inference
 
     monkeypatch.setattr(inference, "MAX_PREDICT_SIZE", (16, 32))
     for decoder in (io.exr, io.rgbe, io.ldr):
         monkeypatch.setattr(decoder, "read_pixels", lambda *a, **k: pytest.fail("decoded despite the header"))
     with pytest.raises(InputError, match="32x64 is too large to predict at full resolution") as e:
-        phyir.predict(pano_file, weights=weights[1])
+        phyir.predict(pano_file, weights=tiny_weights[1])
     one_line_naming(e.value, pano_file)
     monkeypatch.undo()
     monkeypatch.setattr(inference, "MAX_PREDICT_SIZE", (16, 32))
     with pytest.raises(InputError, match="^32x64 is too large"):  # a tensor: checked after all
-        phyir.predict(torch.rand(3, 32, 64), weights=weights[1])
+        phyir.predict(torch.rand(3, 32, 64), weights=tiny_weights[1])
     out = tmp_path / "o.exr"
-    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(weights[1]), "-q"]) == 2
+    assert cli(["predict", str(pano_file), "-o", str(out), "--weights", str(tiny_weights[1]), "-q"]) == 2
     assert "too large to predict" in capsys.readouterr().err and not out.exists()

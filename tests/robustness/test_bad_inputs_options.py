@@ -27,8 +27,7 @@ from phyir.cli import main
 from phyir.errors import InputError
 from phyir.insert import placement, views
 from phyir.insert.objects import SceneObject, primitive
-from phyir.learn.weights import load_model, save_weights
-from phyir.nets import ModelConfig, PhyIRModel
+from phyir.learn.weights import load_model
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 REPO = Path(__file__).resolve().parents[2]
@@ -362,15 +361,6 @@ def test_synth_options_bounded(tmp_path, capsys, option, value):
 
 # ---------------------------------------------------------------------------------------------
 # class 6: weights metadata and tensors
-
-
-@pytest.fixture(scope="module")
-def tiny_weights(tmp_path_factory):
-    torch.manual_seed(0)
-    model = PhyIRModel(ModelConfig.named("lite", probe_size=(8, 16))).eval()
-    folder = tmp_path_factory.mktemp("w")
-    path = save_weights(model, folder / "tiny.safetensors", {"data": {"resolution": "32x64"}})
-    return model, path
 
 
 def weights_file(folder: Path, name: str, model, arch: dict | None = None, state: dict | None = None) -> Path:
