@@ -62,12 +62,13 @@ def log_depth_steps(normal: Tensor) -> Steps:
     return Steps(gx, wx, gy, wy * (1 - last))
 
 
-def _grad(z: Tensor) -> tuple[Tensor, Tensor]:
+def forward_differences(z: Tensor) -> tuple[Tensor, Tensor]:
+    """Differences to the next column (wrapping) and the next row (0 in the last), as :class:`Steps`."""
     return _next_col(z) - z, _next_row(z) - z
 
 
 def _div(fx: Tensor, fy: Tensor) -> Tensor:
-    """Adjoint of :func:`_grad` (fy's last row must be 0)."""
+    """Adjoint of :func:`forward_differences` (fy's last row must be 0)."""
     up = torch.cat((torch.zeros_like(fy[..., :1, :]), fy[..., :-1, :]), dim=-2)
     return torch.roll(fx, 1, dims=-1) - fx + up - fy
 
@@ -76,7 +77,7 @@ def agreement(log_depth: Tensor, steps: Steps, tau: float) -> tuple[Tensor, Tens
     """Step weights times 1 / (1 + (e / tau)^4), e the depth's own step less the normals': ~0 past
     ``tau``, at occlusion edges, where no surface joins the two pixels (a fast falloff: a slower,
     Cauchy one, let small objects drift ~5 % toward the wall behind them)."""
-    zx, zy = _grad(log_depth)
+    zx, zy = forward_differences(log_depth)
     ex, ey = zx - steps.gx, zy - steps.gy
     return steps.wx / (1 + (ex / tau) ** 4), steps.wy / (1 + (ey / tau) ** 4)
 
@@ -94,7 +95,7 @@ def refine_depth(depth: Tensor, normal: Tensor, *, anchor: float = 0.02, tau: fl
     steps = log_depth_steps(normal.to(z0.dtype))
     wx, wy = agreement(z0, steps, tau)
     def apply(z: Tensor) -> Tensor:
-        zx, zy = _grad(z)
+        zx, zy = forward_differences(z)
         return anchor * z + _div(wx * zx, wy * zy)
     b = anchor * z0 + _div(wx * steps.gx, wy * steps.gy)
     z = _conjugate_gradients(apply, b, z0, iters)

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from phyir.depth_normal import agreement, log_depth_steps
+from phyir.depth_normal import agreement, forward_differences, log_depth_steps
 from phyir.pano import resize_area
 from phyir.scene import PanoScene
 
@@ -159,7 +159,7 @@ def depth_normal_loss(depth: Tensor, normal: Tensor, gt_depth: Tensor, gt_normal
     wx, wy = agreement(gt_log, log_depth_steps(gt_normal), SURFACE_TAU)
     steps = log_depth_steps(normal)
     z = torch.log(depth.clamp(min=1e-3))
-    zx, zy = torch.roll(z, -1, dims=-1) - z, torch.cat((z[..., 1:, :], z[..., -1:, :]), -2) - z
+    zx, zy = forward_differences(z)
     num = ((zx - steps.gx).abs() * wx).flatten(1).sum(1) + ((zy - steps.gy).abs() * wy).flatten(1).sum(1)
     return num / (wx.flatten(1).sum(1) + wy.flatten(1).sum(1)).clamp(min=1.0)
 
