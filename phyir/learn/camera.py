@@ -49,6 +49,22 @@ def jpeg_round_trip(srgb8: np.ndarray, quality: int) -> np.ndarray:
         return np.asarray(im.convert("RGB"))
 
 
+def encode_srgb8(shown: Tensor) -> np.ndarray:
+    """Display-referred values (any shape) as 8-bit sRGB codes."""
+    return np.round(linear_to_srgb(shown.detach().cpu().numpy()) * 255).astype(np.uint8)
+
+
+def decode_srgb8(codes: np.ndarray) -> Tensor:
+    """8-bit sRGB codes back to linear values, as the LDR loader decodes them."""
+    return torch.from_numpy(np.ascontiguousarray(srgb_to_linear(codes.astype(np.float32) / 255.0)))
+
+
+def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
+    """The fixed camera: ACES at ``exposure``, sRGB, 8 bits, the loader's decode (no white balance or
+    JPEG; :func:`simulate_ldr` draws those)."""
+    return decode_srgb8(encode_srgb8(aces(image * exposure)))
+
+
 def simulate_ldr(image: Tensor, exposure: float, gen: torch.Generator,
                  camera: CameraPipeline = CameraPipeline()) -> Tensor:
     """Linear radiance ``[3,H,W]`` as the loader would read the photograph a random camera made of it
@@ -60,9 +76,8 @@ def simulate_ldr(image: Tensor, exposure: float, gen: torch.Generator,
     curve = camera.curves[int(u() * len(camera.curves)) % len(camera.curves)]
     g0, g1 = camera.clip_gamma
     shown = tone_curve(image * exposure * gains[:, None, None].to(image), curve, g0 + (g1 - g0) * u())
-    enc = np.round(linear_to_srgb(shown.clamp(0, 1).permute(1, 2, 0).cpu().numpy()) * 255).astype(np.uint8)
+    codes = encode_srgb8(shown.permute(1, 2, 0))  # (linear_to_srgb clips to [0, 1])
     if u() < camera.p_jpeg:
         q0, q1 = camera.jpeg_quality
-        enc = jpeg_round_trip(enc, round(q0 + (q1 - q0) * u()))
-    lin = srgb_to_linear(enc.astype(np.float32) / 255.0)
-    return torch.from_numpy(np.ascontiguousarray(lin)).permute(2, 0, 1).to(image)
+        codes = jpeg_round_trip(codes, round(q0 + (q1 - q0) * u()))
+    return decode_srgb8(codes).permute(2, 0, 1).to(image)

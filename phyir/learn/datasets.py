@@ -30,13 +30,11 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import Tensor
 from torch.utils.data import Dataset
 
-from phyir.color import aces, exposure_scale, luminance
+from phyir.color import exposure_scale, luminance
 from phyir.errors import InputError
 from phyir.learn.camera import CameraPipeline, simulate_ldr
 from phyir.pano import resize_area
@@ -52,14 +50,6 @@ def normalize_scene(scene: PanoScene) -> PanoScene:
     out = scene.replace(image=scene.image * s, probes=None if scene.probes is None else scene.probes * s,
                         meta={**scene.meta, "exposure_scale": f"{s:.9g}"})
     return out
-
-
-def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
-    """What a camera + the LDR loader would give: ACES, sRGB gamma, 8 bits, sRGB decode to linear."""
-    from phyir.color import linear_to_srgb, srgb_to_linear
-
-    enc = linear_to_srgb(aces(image * exposure).numpy())
-    return torch.from_numpy(srgb_to_linear(np.round(enc * 255.0) / 255.0))
 
 
 @dataclass(frozen=True)

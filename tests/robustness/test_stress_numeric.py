@@ -19,12 +19,12 @@ from phyir.color import KEY, SCALE_RANGE, exposure_scale, luminance
 from phyir.filters import guided_filter, guided_upsample
 from phyir.inference import GUIDE_EPS, GUIDE_RADIUS
 from phyir.learn import losses
+from phyir.learn.camera import hdr_to_ldr_linear
 from phyir.learn.datasets import (
     Augment,
     _read_cached,
     _write_cached,
     augment_scene,
-    hdr_to_ldr_linear,
     normalize_scene,
 )
 from phyir.nets import ModelConfig, PhyIRModel

@@ -11,12 +11,12 @@ from support.tiny_scenes import tiny_scene, write_dataset
 
 from phyir.color import KEY, aces, exposure_scale, luminance
 from phyir.errors import InputError
+from phyir.learn.camera import hdr_to_ldr_linear
 from phyir.learn.datasets import (
     Augment,
     SceneDataset,
     TensorSceneDataset,
     augment_scene,
-    hdr_to_ldr_linear,
     normalize_scene,
     read_manifest,
     resize_scene,
