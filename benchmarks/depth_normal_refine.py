@@ -26,19 +26,14 @@ KEYS = ("depth.abs_rel", "depth.rmse", "depth.delta1", "normal.mean")
 
 
 def raw_predictions(files: list[Path]) -> list[tuple]:
-    old = inference.REFINE_ANCHOR
-    inference.REFINE_ANCHOR = None  # predict skips the refinement (see _consistent_depth)
-    try:
-        out = []
-        for f in files:
-            gt = load_scene(f)
-            inp = gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                             probes=None, masks={})
-            p = inference.predict(inp, outputs=("depth", "normal"), probes=None)
-            out.append((gt, p.depth, p.normal))
-        return out
-    finally:
-        inference.REFINE_ANCHOR = old
+    out = []
+    for f in files:
+        gt = load_scene(f)
+        inp = gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
+                         probes=None, masks={})
+        p = inference.predict(inp, outputs=("depth", "normal"), probes=None, refine_depth=False)
+        out.append((gt, p.depth, p.normal))
+    return out
 
 
 def score(preds: list[tuple], fn) -> dict[str, float]:

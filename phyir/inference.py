@@ -57,7 +57,7 @@ MAX_AWAY_SHARE = 0.05
 # depth-normal refinement (phyir.depth_normal.refine_depth), chosen on 10 synthetic rooms of seed 7000
 # (benchmarks/depth_normal_refine.py; checked on 20 others): reach ~ 1/sqrt(anchor) = 18 px, steps
 # further than ~0.02 in log depth from the normals' are occlusions
-REFINE_ANCHOR: float | None = 3e-3  # None: no refinement (the raw network depth)
+REFINE_ANCHOR = 3e-3
 REFINE_TAU = 0.02
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 # the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
@@ -229,6 +229,7 @@ class PredictOptions:
     model: Any = None
     amp: bool = True
     recover_hdr: bool = True  # LDR inputs: give clipped lamps and windows their energy back (image layer)
+    refine_depth: bool = True  # the network's depth made to follow its normals (False: the raw depth)
     progress: Callable[[str, float], None] | None = None
     cancel: Callable[[], bool] | threading.Event | None = None
 
@@ -351,7 +352,8 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     with torch.inference_mode(), autocast:
         if plan.run_gm:
             gm = _plausible_gmnet(model, xn, clock.report)
-            _consistent_depth(gm, plan, clock.report)
+            if opts.refine_depth:
+                _consistent_depth(gm, plan, clock.report)
             clock.step("gmnet", 0.35)
         for k in plan.have & plan.gm_inputs:  # the input's own layers, at the network's resolution
             v = pano.resize_area(getattr(scene, k).float(), Hn, Wn).to(dev)[None]
@@ -397,7 +399,7 @@ def _consistent_depth(gm: dict[str, Tensor], plan: _Plan, report: PredictReport)
     """GMNet's depth made to follow its normals (:func:`phyir.depth_normal.refine_depth`): planes come
     out planar and the two layers agree. Only where the normals are the network's and plausible (a
     collapsed normal head would bend the depth) and the depth is predicted, not the input's."""
-    if REFINE_ANCHOR is None or "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
+    if "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
         return
     if away_share(gm["normal"][0]) > MAX_AWAY_SHARE:
         return
@@ -530,8 +532,10 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, options: PredictOpti
     ``lighting``: ``"projection"`` (probes re-read from the panorama where the camera saw, LNet
     elsewhere) or ``"lnet"`` (LNet only); default :data:`DEFAULT_LIGHTING`.
     ``net_size``: network resolution (H, W) (default: the weights' training resolution, at most the
-    input's).  ``progress(stage, fraction)`` is called between stages; ``cancel`` (a callable or an
-    Event) is checked between stages and raises :class:`Cancelled`.
+    input's).  ``refine_depth``: make the predicted depth follow the predicted normals where those are
+    plausible (default True; False gives GMNet's raw depth).  ``progress(stage, fraction)`` is called
+    between stages; ``cancel`` (a callable or an Event) is checked between stages and raises
+    :class:`Cancelled`.
     """
     return predict_with_report(source, options, **kwargs)[0]
 

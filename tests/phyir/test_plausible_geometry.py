@@ -134,6 +134,10 @@ def test_predicted_depth_is_refined_to_follow_plausible_normals():
     after = float(angle_deg(pano.normals_from_depth(out.depth), out.normal).mean())
     before = float(angle_deg(pano.normals_from_depth(raw), out.normal).mean())
     assert after < 0.5 * before, (after, before)
+    # refine_depth=False: GMNet's depth as it came
+    plain, report = inference.predict_with_report(dark_top, model=StubModel(gm), outputs=("depth",),
+                                                  probes=None, refine_depth=False)
+    assert not report.depth_refined and torch.allclose(plain.depth, raw)
 
 
 def test_depth_is_not_refined_by_collapsed_normals_or_when_given():
