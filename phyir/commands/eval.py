@@ -16,6 +16,8 @@ DEPTH = ["depth.mae", "depth.abs_rel", "depth.sq_rel", "depth.rmse", "depth.rmse
 NORMAL = ["normal.mean", "normal.median", "normal.pct_11.25", "normal.pct_22.5", "normal.pct_30"]
 MATERIAL = ["albedo_mse", "albedo_si_mse", "roughness_mse", "metallic_mse", "metallic_auc"]
 LIGHT = ["probe_log_mse", "relight_diffuse", "relight_matte_silver", "relight_mirror_silver"]
+SPHERES = ["diffuse.rel_l1", "diffuse.si_rel_l1", "diffuse.ratio", "diffuse.colour_deg",
+           "matte_silver.rel_l1", "matte_silver.si_rel_l1", "matte_silver.ratio"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probes per scene rendered for the relighting error (0: skip)")
     parser.add_argument("--spp", type=options.number(1, 65536, integer=True), default=64,
                         help="samples per pixel of the relit spheres")
+    parser.add_argument("--points", type=options.number(0, 4096, integer=True), default=0,
+                        help="--data: also the light at N free points per scene against probes path-traced "
+                             "there (phyir.evaluation.points; 0: skip)")
     parser.add_argument("--seed", type=options.number(0, 2**63 - 1, integer=True), default=0)
     parser.add_argument("--json", metavar="FILE", type=options.path, help="write the results as JSON")
     parser.add_argument("--markdown", metavar="FILE", type=options.path,
@@ -54,7 +59,8 @@ def markdown(results: dict[str, dict[str, float]]) -> str:
     results = {m: r for m, r in results.items() if m not in margins}
     parts = []
     for title, keys in (("Depth", DEPTH), ("Normals (degrees, %)", NORMAL), ("Materials (MSE)", MATERIAL),
-                        ("Lighting (log-space MSE)", LIGHT)):
+                        ("Lighting (log-space MSE)", LIGHT),
+                        ("Spheres lit by the light at free points (rel L1, ratio, degrees)", SPHERES)):
         rows = {m: r for m, r in results.items() if any(k in r for k in keys)}
         if rows:
             heads = [k for k in keys if any(k in r for r in rows.values())]
@@ -123,6 +129,13 @@ def run(args: argparse.Namespace) -> int:
                                  limit=args.limit, probes_per_scene=args.probes_per_scene,
                                  relight=args.relight, spp=args.spp, seed=args.seed,
                                  log=lambda s: print(s, file=sys.stderr, flush=True))
+        if args.points:
+            from phyir.evaluation.points import evaluate_model_points
+
+            results |= evaluate_model_points(
+                args.data, args.split, count=args.points, weights=args.weights, device=args.device,
+                limit=args.limit, spp=args.spp, seed=args.seed,
+                log=lambda s: print(s, file=sys.stderr, flush=True))
     else:
         if not args.gt:
             raise PhyIRError("prediction files need --gt DIR (the ground-truth scenes)")

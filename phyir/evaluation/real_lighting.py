@@ -62,7 +62,7 @@ def probe_field_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, i
 
     field = ProbeField(scene)
     probes = torch.stack([field.probe_at(p) for p in points.reshape(-1, 3)])
-    return _at_size(probes, probe_size)
+    return at_size(probes, probe_size)
 
 
 def projection_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]) -> Tensor:
@@ -73,7 +73,7 @@ def projection_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, in
     from phyir.lighting.projection import project_probes
 
     pts = points.reshape(-1, 3).float()
-    fallback = _at_size(lnet_probes_at(scene.probes, pts), probe_size)
+    fallback = at_size(lnet_probes_at(scene.probes, pts), probe_size)
     return project_probes(scene, pts, probe_size, fallback)[0]
 
 
@@ -91,7 +91,8 @@ LIGHT_METHODS: dict[str, LightMethod] = {
 }
 
 
-def _at_size(probes: Tensor, size: tuple[int, int]) -> Tensor:
+def at_size(probes: Tensor, size: tuple[int, int]) -> Tensor:
+    """``probes [...,3,h,w]`` area-resized to ``size`` (as they are when already that size)."""
     return probes if tuple(probes.shape[-2:]) == tuple(size) else pano.resize_area(probes, *size)
 
 
@@ -210,7 +211,7 @@ def sphere_metrics(ours: Tensor, truth: Tensor) -> dict[str, float]:
 def peak_direction(env: Tensor, size: tuple[int, int]) -> Tensor:
     """Unit direction [3] of the brightest texel (luminance) of ``env [3,h,w]`` area-resized to ``size``
     (so a panorama and a probe are compared at the same angular resolution)."""
-    e = _at_size(torch.nan_to_num(env.float(), nan=0.0, posinf=0.0), size)
+    e = at_size(torch.nan_to_num(env.float(), nan=0.0, posinf=0.0), size)
     i = int(luminance(e).flatten().argmax())
     return pano.directions(*size).reshape(3, -1)[:, i]
 
@@ -243,7 +244,7 @@ def evaluate_lighting(hdr: Tensor, ldr: Tensor, ldr_scale: float, preds: dict[st
     probes = {(inp, m): fn(preds[inp], X, size)[0].float() for inp in preds for m, fn in methods.items()}
     keys = list(probes)
     lo = [pano.resize_area(hdr.float(), *INTEGRATION_SIZE), pano.resize_area(ldr.float(), *INTEGRATION_SIZE)]
-    envs = torch.stack(lo + [_at_size(p, INTEGRATION_SIZE) for p in probes.values()])
+    envs = torch.stack(lo + [at_size(p, INTEGRATION_SIZE) for p in probes.values()])
     full = {"truth": hdr, "naive": ldr} | {k: probes[k] for k in keys}  # mirror look-ups at full res
     results: dict[str, dict[str, dict[str, float]]] = {inp: {} for inp in preds}
     images: dict[str, Tensor] = {}

@@ -13,7 +13,7 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -114,6 +114,37 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
                       masks={"emission": res.emission}, meta=meta)
     return scene.to("cpu")
 
+
+
+def trace_probes_at(scene: PanoScene, points: torch.Tensor, probe_size: tuple[int, int] = (16, 32),
+                    settings: TraceSettings | None = None, seed: int = 0, device=None) -> torch.Tensor:
+    """Path-traced probes ``[N,3,h,w]`` at camera-frame ``points [N,3]`` of the room a
+    :func:`generate_scene` file came from (its ``seed``/``index`` meta), in the file's units (its
+    ``exposure``): the ground truth of the light anywhere in the room, not just at the probe grid.
+
+    The room is drawn again, so it must come from this generator: its camera rays are checked
+    against the file's depth (a file from another generator version is refused, naming it)."""
+    from phyir.pano import directions
+    from phyir.synth import geometry as G
+    from phyir.synth.paths import build_lightmap
+    from phyir.synth.tracer import render_probes_at
+
+    meta = scene.meta
+    if not all(k in meta for k in ("seed", "index", "exposure")):
+        raise PhyIRError("trace_probes_at: the scene has no synthetic room (no seed/index/exposure meta)")
+    room = generate_room(np.random.default_rng([int(meta["seed"]), int(meta["index"])]))
+    sc = room.build(device)
+    H, W = scene.size
+    d = directions(H, W)[:, ::max(1, H // 16), ::max(1, W // 32)].reshape(3, -1).T.contiguous()
+    t, _ = G.intersect(sc.prims, torch.zeros_like(d).to(sc.device), d.to(sc.device))
+    want = scene.depth[:, ::max(1, H // 16), ::max(1, W // 32)].reshape(-1).float()
+    if float(((t.cpu() - want).abs() / want.clamp_min(1e-3)).median()) > 0.02:
+        raise PhyIRError(f"trace_probes_at: room {meta['seed']}/{meta['index']} drawn again does not match "
+                         "the scene's depth (made by another version of the generator)")
+    st = replace(settings or TraceSettings(), probe_size=tuple(probe_size))
+    gen = torch.Generator(device=sc.device).manual_seed(int(seed))
+    lm = build_lightmap(sc, st, gen)
+    return (render_probes_at(sc, lm, points, st, gen) * float(meta["exposure"])).cpu()
 
 @dataclass
 class DatasetConfig:

@@ -193,16 +193,23 @@ def probe_points(sc, st: TraceSettings) -> Tensor:
 
 
 def render_probes(sc, lm: LightMap, st: TraceSettings, gen: torch.Generator) -> Tensor:
-    dev = sc.device
+    """The probe grid ``[Hp,Wp,3,h,w]`` at :func:`probe_points`."""
     Hp, Wp = st.probe_grid
     h, w = st.probe_size
-    q_all = probe_points(sc, st)
-    out = torch.zeros(len(q_all), h * w, 3, device=dev)
+    flat = render_probes_at(sc, lm, probe_points(sc, st), st, gen)
+    return flat.reshape(Hp, Wp, 3, h, w)
+
+
+def render_probes_at(sc, lm: LightMap, points: Tensor, st: TraceSettings, gen: torch.Generator) -> Tensor:
+    """Probes ``[N,3,h,w]`` (``st.probe_size``) at any points ``[N,3]`` of the camera frame."""
+    h, w = st.probe_size
+    q_all = points.to(sc.device, torch.float32).reshape(-1, 3)
+    out = torch.zeros(len(q_all), h * w, 3, device=sc.device)
     for a in range(0, len(q_all), st.probe_batch):
         q = q_all[a:a + st.probe_batch]
         out[a:a + len(q)] = _probe_main(sc, lm, q, st, gen) + _probe_emitters(sc, q, st, gen)
         out[a:a + len(q)] += _probe_sun(sc, q, st, gen)
-    return out.reshape(Hp, Wp, h, w, 3).permute(0, 1, 4, 2, 3).contiguous()
+    return out.reshape(-1, h, w, 3).permute(0, 3, 1, 2).contiguous()
 
 
 def texel_dirs(i: Tensor, j: Tensor, jitter: Tensor, h: int, w: int) -> Tensor:

@@ -1,0 +1,90 @@
+"""Light at free points of synthetic rooms against probes path-traced there (phyir.evaluation.points)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from phyir.errors import PhyIRError
+from phyir.evaluation import points as P
+from phyir.evaluation.real_lighting import SPHERE_CENTRE
+from phyir.synth import geometry as G
+from phyir.synth.dataset import generate_scene, make_tiny_dataset, tiny_settings, trace_probes_at
+from phyir.synth.rooms import generate_room
+from phyir.synth.tracer import probe_points
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+ST = tiny_settings(size=(64, 128), probe_grid=(4, 8), probe_size=(8, 16), spp=4)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return generate_scene(0, 3, ST)
+
+
+def test_traced_probes_at_the_grid_points_match_the_stored_grid(room):
+    """The probes traced again at the file's own probe points agree with its probe grid (the same room,
+    the same units): in total within 3 %, texel by texel 15 % (one path per texel and a new light map)."""
+    sc = generate_room(np.random.default_rng([0, 3])).build()
+    pts = probe_points(sc, ST)
+    traced = trace_probes_at(room, pts, (8, 16), settings=ST, seed=5)
+    stored = room.probes.reshape(-1, 3, 8, 16)
+    assert traced.shape == stored.shape
+    assert float(traced.sum() / stored.sum()) == pytest.approx(1.0, abs=0.03)
+    assert float((traced - stored).abs().sum() / stored.sum()) < 0.15
+
+
+def test_a_room_from_another_generator_is_refused(room):
+    moved = room.replace(depth=room.depth * 1.5)
+    with pytest.raises(PhyIRError, match="another version of the generator"):
+        trace_probes_at(moved, torch.zeros(1, 3), (8, 16), settings=ST)
+    with pytest.raises(PhyIRError, match="no synthetic room"):
+        trace_probes_at(room.replace(meta={}), torch.zeros(1, 3), (8, 16), settings=ST)
+
+
+def test_free_points_lie_in_the_free_space_the_camera_sees(room):
+    # room (0, 3) has furniture 0.9 m away in the protocol point's direction: that point is left out
+    assert not any(torch.equal(p, torch.tensor(SPHERE_CENTRE)) for p in P.free_points(room, 12, seed=1))
+    room = generate_scene(0, 1, ST)  # a wall 4.8 m away there
+    pts = P.free_points(room, 12, seed=1)
+    assert pts.shape == (12, 3)
+    assert torch.equal(pts[0], torch.tensor(SPHERE_CENTRE))
+    sc = generate_room(np.random.default_rng([0, 1])).build()
+    r = pts.norm(dim=1)
+    t, _ = G.intersect(sc.prims, torch.zeros_like(pts), pts / r[:, None])
+    assert bool((t >= r + P.MARGIN - 0.02).all())  # the surface behind each is at least MARGIN further
+    torch.testing.assert_close(P.free_points(room, 12, seed=1), pts)  # seeded
+    assert not torch.equal(P.free_points(room, 12, seed=2)[1:], pts[1:])
+
+
+def test_sphere_errors_of_the_truth_and_of_twice_the_truth(room):
+    pts = P.free_points(room, 3, seed=0)
+    truth = trace_probes_at(room, pts, (8, 16), settings=ST)
+    same = P.sphere_errors(truth, truth, pts)
+    assert same["diffuse.rel_l1"] == pytest.approx(0, abs=1e-9)
+    assert same["matte_silver.ratio"] == pytest.approx(1, abs=1e-9)
+    double = P.sphere_errors(2 * truth, truth, pts)
+    assert double["diffuse.rel_l1"] == pytest.approx(1, rel=1e-6)
+    assert double["diffuse.ratio"] == pytest.approx(2, rel=1e-6)
+    assert double["diffuse.si_rel_l1"] == pytest.approx(0, abs=1e-6)  # the right shape, twice too bright
+
+
+def test_eval_points_command(tmp_path, capsys):
+    """``phyir eval --data D --points N``: rows for every method at free points and at the protocol's
+    point, in the JSON and the Markdown; the light at the point beats the camera's panorama there."""
+    from phyir.cli import main
+
+    make_tiny_dataset(tmp_path / "d", count=3, size=(64, 128), probe_grid=(4, 8))
+    js = tmp_path / "r.json"
+    assert main(["eval", "--data", str(tmp_path / "d"), "--split", "train", "--limit", "1", "--points", "3",
+                 "--relight", "2", "--spp", "4", "--probes-per-scene", "4", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    r = json.loads(js.read_text())
+    for m in P.POINT_METHODS:
+        assert f"| points/{m} |" in out
+        assert np.isfinite(r[f"points/{m}"]["diffuse.rel_l1"]) and "relight_mirror_silver" in r[f"points/{m}"]
+    assert "Spheres lit by the light at free points" in out
+    one = [k for k in r if k.startswith("protocol/")]  # the protocol point is free in one scene or not
+    assert [k.replace("protocol/", "protocol_median/") for k in one] == [k for k in r if "median" in k]
