@@ -51,16 +51,10 @@ SPHERE_MATERIALS = ("diffuse", "matte_silver")  # the mirror needs the truth's f
 PointMethod = Callable[[PanoScene, PanoScene, Tensor, tuple[int, int]], Tensor]
 
 
-def _light_at(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
-    return RL.light_at_point(pred, pts, size)
-
-
-def _lnet(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
-    return RL.probe_field_light(pred, pts, size)
-
-
-def _projection(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
-    return RL.projection_light(pred, pts, size)
+def _on_prediction(method: RL.LightMethod) -> PointMethod:
+    """A real-protocol light method (:data:`phyir.evaluation.real_lighting.LIGHT_METHODS`) as a point
+    method: it sees the predicted scene only."""
+    return lambda pred, gt, pts, size: method(pred, pts, size)
 
 
 def _light_at_gt_geometry(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
@@ -74,9 +68,9 @@ def _panorama(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]
 
 
 POINT_METHODS: dict[str, PointMethod] = {
-    "light_at": _light_at,
-    "lnet": _lnet,
-    "projection": _projection,
+    "light_at": _on_prediction(RL.light_at_point),
+    "lnet": _on_prediction(RL.probe_field_light),
+    "projection": _on_prediction(RL.projection_light),
     "light_at_gt_geometry": _light_at_gt_geometry,
     "panorama": _panorama,
 }
@@ -125,28 +119,35 @@ def sphere_errors(probes: Tensor, truth: Tensor, points: Tensor) -> dict[str, fl
     return {k: s / len(points) for k, s in sums.items()}
 
 
+def method_probes(pred: PanoScene, gt: PanoScene, points: Tensor, size: tuple[int, int],
+                  methods: dict[str, PointMethod] | None = None) -> dict[str, Tensor]:
+    """``{method: probes [N,3,h,w]}`` at ``points``, at ``size``, non-negative."""
+    return {name: RL.at_size(fn(pred, gt, points, size).float(), size).clamp_min(0)
+            for name, fn in (POINT_METHODS if methods is None else methods).items()}
+
+
+def point_metrics(probes: dict[str, Tensor], truth: Tensor, points: Tensor, *, spp: int = 64
+                  ) -> dict[str, dict[str, float]]:
+    """``{method: metrics}`` of each method's ``probes`` against the traced ``truth [N,3,h,w]``."""
+    from phyir.evaluation.synthetic import lighting_metrics
+
+    return {name: lighting_metrics(p, truth, points, relight=len(points), spp=spp)
+            | sphere_errors(p, truth, points) for name, p in probes.items()}
+
+
 def evaluate_points(pred: PanoScene, gt: PanoScene, points: Tensor, truth: Tensor, *, spp: int = 64,
                     methods: dict[str, PointMethod] | None = None) -> dict[str, dict[str, float]]:
     """``{method: metrics}`` of the light at ``points`` against the traced ``truth [N,3,h,w]``."""
-    from phyir.evaluation.synthetic import lighting_metrics
-
-    size = tuple(truth.shape[-2:])
-    out = {}
-    for name, fn in (POINT_METHODS if methods is None else methods).items():
-        probes = RL.at_size(fn(pred, gt, points, size).float(), size).clamp_min(0)
-        out[name] = lighting_metrics(probes, truth, points, relight=len(points), spp=spp) \
-            | sphere_errors(probes, truth, points)
-    return out
+    probes = method_probes(pred, gt, points, tuple(truth.shape[-2:]), methods)
+    return point_metrics(probes, truth, points, spp=spp)
 
 
 def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count: int = 8, weights=None,
                           model=None, device=None, limit: int | None = None, spp: int = 64, seed: int = 0,
-                          settings=None, log: Callable[[str], None] | None = None
-                          ) -> dict[str, dict[str, float]]:
+                          log: Callable[[str], None] | None = None) -> dict[str, dict[str, float]]:
     """``{"points/<method>": metrics}``: the model on ``split``'s scenes, ``count`` free points each;
     ``"protocol/<method>"``: the same at the real protocol's sphere centre alone (where it is free), and
-    ``"protocol_median/<method>"`` its medians over the scenes.
-    ``settings``: the tracer's for the truth (:class:`phyir.synth.tracer.TraceSettings`; default its own)."""
+    ``"protocol_median/<method>"`` its medians over the scenes."""
     from phyir.inference import predict
     from phyir.io import load_scene
     from phyir.learn.datasets import split_files
@@ -163,10 +164,12 @@ def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count
         points = free_points(gt, count, seed * 1_000_003 + i)
         if not len(points):
             continue
-        truth = trace_probes_at(gt, points, TRUTH_SIZE, settings=settings, seed=seed)
-        rows = {f"points/{k}": r for k, r in evaluate_points(pred, gt, points, truth, spp=spp).items()}
+        truth = trace_probes_at(gt, points, TRUTH_SIZE, seed=seed)
+        probes = method_probes(pred, gt, points, TRUTH_SIZE)
+        rows = {f"points/{k}": r for k, r in point_metrics(probes, truth, points, spp=spp).items()}
         if torch.equal(points[0], torch.tensor(RL.SPHERE_CENTRE)):  # the real protocol's point alone
-            one = evaluate_points(pred, gt, points[:1], truth[:1], spp=spp)
+            first = {k: p[:1] for k, p in probes.items()}
+            one = point_metrics(first, truth[:1], points[:1], spp=spp)
             rows |= {f"protocol/{k}": r for k, r in one.items()}
         for k, r in rows.items():
             meters.setdefault(k, M.MetricMeter()).add(r)

@@ -115,7 +115,6 @@ def generate_scene(seed: int, index: int, settings: TraceSettings | None = None,
     return scene.to("cpu")
 
 
-
 def trace_probes_at(scene: PanoScene, points: torch.Tensor, probe_size: tuple[int, int] = (16, 32),
                     settings: TraceSettings | None = None, seed: int = 0, device=None) -> torch.Tensor:
     """Path-traced probes ``[N,3,h,w]`` at camera-frame ``points [N,3]`` of the room a
@@ -135,9 +134,10 @@ def trace_probes_at(scene: PanoScene, points: torch.Tensor, probe_size: tuple[in
     room = generate_room(np.random.default_rng([int(meta["seed"]), int(meta["index"])]))
     sc = room.build(device)
     H, W = scene.size
-    d = directions(H, W)[:, ::max(1, H // 16), ::max(1, W // 32)].reshape(3, -1).T.contiguous()
-    t, _ = G.intersect(sc.prims, torch.zeros_like(d).to(sc.device), d.to(sc.device))
-    want = scene.depth[:, ::max(1, H // 16), ::max(1, W // 32)].reshape(-1).float()
+    rows, cols = slice(None, None, max(1, H // 16)), slice(None, None, max(1, W // 32))  # 16x32 rays
+    d = directions(H, W)[:, rows, cols].reshape(3, -1).T.contiguous().to(sc.device)
+    t, _ = G.intersect(sc.prims, torch.zeros_like(d), d)
+    want = scene.depth[:, rows, cols].reshape(-1).float()
     if float(((t.cpu() - want).abs() / want.clamp_min(1e-3)).median()) > 0.02:
         raise PhyIRError(f"trace_probes_at: room {meta['seed']}/{meta['index']} drawn again does not match "
                          "the scene's depth (made by another version of the generator)")
@@ -145,6 +145,7 @@ def trace_probes_at(scene: PanoScene, points: torch.Tensor, probe_size: tuple[in
     gen = torch.Generator(device=sc.device).manual_seed(int(seed))
     lm = build_lightmap(sc, st, gen)
     return (render_probes_at(sc, lm, points, st, gen) * float(meta["exposure"])).cpu()
+
 
 @dataclass
 class DatasetConfig:
