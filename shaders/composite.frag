@@ -191,6 +191,7 @@ void main() {
             vec2 ab = texture(dfg, vec2(clamp(dot(n, view), 0.0, 1.0), rm.r)).rg;
             vec3 spec_albedo = (0.04 * (1.0 - rm.g) + rm.g * base) * ab.x + ab.y;
             vec3 dS = vec3(0.0);
+            vec3 s_pl = vec3(0.0);  // what the receiver's specular lobe reflected before (spec_albedo x L)
             vec3 dE = vec3(0.0);
             vec3 e_pl = vec3(0.0);
             float e_lights = 0.0;  // the brightest unshadowed light's irradiance (luminance)
@@ -259,6 +260,7 @@ void main() {
                     float lod = 0.5 * log2(max(PI * lobe_w * lobe_w / residual_texel, 1.0));
                     vec3 l_env = textureLod(obj_probes, vec3(scene_st(rs), float(2 * k + 1)), lod).rgb;
                     dS += fade * spec_albedo * (1.0 - seen) * (l_seen / f_sum - l_env);
+                    s_pl = max(s_pl, spec_albedo * l_env);
                 }
 #endif
             }
@@ -284,8 +286,14 @@ void main() {
                 // coloured halo) wherever those over-estimated what the photo shows.
                 vec3 e_ref = max(e_pl, vec3(e_lights));
                 vec3 keep_share = max(vec3(1.0) + dE / max(e_ref, vec3(1e-6)), vec3(0.0));
-                if (has_albedo == 0) dS = vec3(0.0);
-                vec3 shadowed = max(bg * keep_share + dS, vec3(0.0));
+                // the specular change in the same ratio form: the share of the photo the lobe
+                // reflected (predicted specular / predicted total) changes by dS / s_pl; added as
+                // bg + dS it went black wherever the predicted reflection (a lamp) outshone the photo
+                vec3 d_pl = base * (1.0 - rm.g) * e_ref / PI;
+                vec3 f_spec = has_albedo == 0 ? vec3(0.0) : s_pl / max(d_pl + s_pl, vec3(1e-6));
+                vec3 spec_keep = max(vec3(1.0) + dS / max(s_pl, vec3(1e-6)), vec3(0.0));
+                keep_share = (1.0 - f_spec) * keep_share + f_spec * spec_keep;
+                vec3 shadowed = bg * keep_share;
                 float lum_pl = dot(e_ref, vec3(0.2126, 0.7152, 0.0722));
                 matte = clamp(-dot(dE, vec3(0.2126, 0.7152, 0.0722)) / max(lum_pl, 1e-6), 0.0, 1.0);
                 de_pi = dot(shadowed - bg, vec3(0.2126, 0.7152, 0.0722));
