@@ -45,7 +45,7 @@ def floor_spots(scene, count: int, distance: float, max_tilt_deg: float = 25.0) 
     return spots
 
 
-def _dilate(mask: torch.Tensor, steps: int) -> torch.Tensor:
+def dilate(mask: torch.Tensor, steps: int) -> torch.Tensor:
     """``mask [h,w]`` grown by ``steps`` pixels (3x3 steps; columns wrap round the seam)."""
     m = mask[None, None].float()
     for _ in range(steps):
@@ -58,7 +58,7 @@ def ring_stats(before: np.ndarray, after: np.ndarray, alpha: np.ndarray, ring: f
     luma = np.array([0.2126, 0.7152, 0.0722], np.float32)
     covered = torch.from_numpy(alpha > 0.02)
     radius = math.sqrt(float(covered.sum()) / math.pi)
-    band = (_dilate(covered, max(3, round(ring * radius))) & ~_dilate(covered, 1)).numpy()
+    band = (dilate(covered, max(3, round(ring * radius))) & ~dilate(covered, 1)).numpy()
     lb, la = before[band] @ luma, after[band] @ luma
     ok = lb > 1e-8
     return {"darkening": float(1 - la.sum() / lb.sum()), "ring_min": float(np.percentile(la[ok] / lb[ok], 2)),

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from insert_shadow_ring import _dilate, floor_spots  # noqa: E402
+from insert_shadow_ring import dilate, floor_spots  # noqa: E402
 
 LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
 
@@ -31,7 +31,7 @@ LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
 def _ring(alpha: np.ndarray, ring: float) -> torch.Tensor:
     covered = torch.from_numpy(alpha > 0.02)
     radius = float(np.sqrt(float(covered.sum()) / np.pi))
-    return _dilate(covered, max(3, round(ring * radius))) & ~_dilate(covered, 1)
+    return dilate(covered, max(3, round(ring * radius))) & ~dilate(covered, 1)
 
 
 def sphere_occlusion(x: torch.Tensor, dirs: torch.Tensor, centre: torch.Tensor, r: float,
