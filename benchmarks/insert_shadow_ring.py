@@ -53,12 +53,32 @@ def dilate(mask: torch.Tensor, steps: int) -> torch.Tensor:
     return m[0, 0] > 0
 
 
+def ring_band(alpha: np.ndarray, ring: float) -> tuple[torch.Tensor, float]:
+    """The floor ring ``[h,w]`` (bool) around the silhouette ``alpha > 0.02``, ``ring`` x its radius
+    wide, and that radius in pixels."""
+    covered = torch.from_numpy(alpha > 0.02)
+    radius = math.sqrt(float(covered.sum()) / math.pi)
+    return dilate(covered, max(3, round(ring * radius))) & ~dilate(covered, 1), radius
+
+
+def spot_renders(renderer, scene, args):
+    """Per floor spot of ``scene``: (u, v, the sphere, its ``render_view`` output), rendered like
+    ``phyir insert`` (equirect, the panorama's size, three-image fusion, full quality)."""
+    from phyir.insert import views
+    from viewer.insertion import FULL
+
+    for u, v in floor_spots(scene, args.spots, args.distance):
+        obj = views.make_object("sphere", args.radius, "diffuse")
+        views.place_object(obj, scene, at=(u - 0.5, v - 0.5), log=lambda *a: None)
+        view, size = views.ViewSpec().build(scene, None)
+        yield u, v, obj, renderer.render_view([obj], view, size, FULL, "three-image")
+
+
 def ring_stats(before: np.ndarray, after: np.ndarray, alpha: np.ndarray, ring: float) -> dict[str, float]:
     """Darkening and darkest pixels of the ring around the object's silhouette (equirect arrays)."""
     luma = np.array([0.2126, 0.7152, 0.0722], np.float32)
-    covered = torch.from_numpy(alpha > 0.02)
-    radius = math.sqrt(float(covered.sum()) / math.pi)
-    band = (dilate(covered, max(3, round(ring * radius))) & ~dilate(covered, 1)).numpy()
+    band, radius = ring_band(alpha, ring)
+    band = band.numpy()
     lb, la = before[band] @ luma, after[band] @ luma
     ok = lb > 1e-8
     return {"darkening": float(1 - la.sum() / lb.sum()), "ring_min": float(np.percentile(la[ok] / lb[ok], 2)),
@@ -77,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from phyir.insert import views
     from viewer.gl.window import gl_context
-    from viewer.insertion import FULL, InsertionRenderer
+    from viewer.insertion import InsertionRenderer
 
     ctx = gl_context()
     renderer = InsertionRenderer(ctx)
@@ -86,14 +106,9 @@ def main(argv: list[str] | None = None) -> int:
         for path in args.inputs:
             scene = views.load_insert_scene(path, log=lambda *a: None)
             renderer.set_scene(scene)
-            H, W = scene.size
             before = scene.image.permute(1, 2, 0).numpy()
             rows = []
-            for u, v in floor_spots(scene, args.spots, args.distance):
-                obj = views.make_object("sphere", args.radius, "diffuse")
-                views.place_object(obj, scene, at=(u - 0.5, v - 0.5), log=lambda *a: None)
-                view, size = views.ViewSpec().build(scene, None)
-                out = renderer.render_view([obj], view, size, FULL, "three-image")
+            for u, v, _obj, out in spot_renders(renderer, scene, args):
                 rows.append({"u": u, "v": v, **ring_stats(before, out["composite"], out["alpha"], args.ring)})
             name = Path(path).stem
             results[name] = rows

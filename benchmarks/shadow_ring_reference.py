@@ -23,23 +23,17 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from insert_shadow_ring import dilate, floor_spots  # noqa: E402
+from insert_shadow_ring import ring_band, spot_renders  # noqa: E402
+
+from phyir import pano  # noqa: E402
 
 LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
-
-
-def _ring(alpha: np.ndarray, ring: float) -> torch.Tensor:
-    covered = torch.from_numpy(alpha > 0.02)
-    radius = float(np.sqrt(float(covered.sum()) / np.pi))
-    return dilate(covered, max(3, round(ring * radius))) & ~dilate(covered, 1)
 
 
 def sphere_occlusion(x: torch.Tensor, dirs: torch.Tensor, centre: torch.Tensor, r: float,
                      sub: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
     """Per point ``x [N,3]`` and texel direction ``dirs [3,h,w]``: the share of the texel the sphere
     covers (``sub`` x ``sub`` jittered directions) and the mean unit normal where they hit it."""
-    from phyir import pano
-
     h, w = dirs.shape[-2:]
     rows, cols = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
                                 indexing="ij")
@@ -66,8 +60,6 @@ def irradiance_towards(probe: torch.Tensor, normals: torch.Tensor, map_size: tup
                        ) -> torch.Tensor:
     """Irradiance ``[N,3,h,w]`` of ``probe [3,ph,pw]`` around unit normals ``normals [N,3,h,w]``: its
     irradiance map (brute force over the probe's texels, smooth), looked up bilinearly."""
-    from phyir import pano
-
     ph, pw = probe.shape[-2:]
     d = pano.directions(ph, pw, dtype=torch.float64).reshape(3, -1)
     om = pano.solid_angles(ph, pw, dtype=torch.float64).reshape(-1)
@@ -85,7 +77,6 @@ def ring_reference(scene, obj, ring_px: torch.Tensor, size: tuple[int, int], max
     """(pixel indices into the ring, reference ratio after / before [n,3]) for up to ``max_points``
     ring pixels.  ``light``: "at-point" (light_at at each point) or "panorama" (the panorama itself
     as distant light everywhere: no parallax, but every lamp exactly as sharp as the input shows it)."""
-    from phyir import pano
     from phyir.lighting.at_point import LightAtPoint
 
     H, W = scene.size
@@ -133,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from phyir.insert import views
     from viewer.gl.window import gl_context
-    from viewer.insertion import FULL, InsertionRenderer
+    from viewer.insertion import InsertionRenderer
 
     ctx = gl_context()
     renderer = InsertionRenderer(ctx)
@@ -145,12 +136,8 @@ def main(argv: list[str] | None = None) -> int:
             renderer.set_scene(scene)
             before = scene.image.permute(1, 2, 0).double()
             rows = []
-            for u, v in floor_spots(scene, args.spots, args.distance):
-                obj = views.make_object("sphere", args.radius, "diffuse")
-                views.place_object(obj, scene, at=(u - 0.5, v - 0.5), log=lambda *a: None)
-                view, vsize = views.ViewSpec().build(scene, None)
-                out = renderer.render_view([obj], view, vsize, FULL, "three-image")
-                band = _ring(out["alpha"], args.ring)
+            for u, v, obj, out in spot_renders(renderer, scene, args):
+                band, _radius = ring_band(out["alpha"], args.ring)
                 idx, ratio = ring_reference(scene, obj, band, size, args.points, gen, args.light)
                 b = before[idx[:, 0], idx[:, 1]]
                 a = torch.from_numpy(out["composite"]).double()[idx[:, 0], idx[:, 1]]
