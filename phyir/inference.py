@@ -37,6 +37,7 @@ from phyir import pano
 from phyir.depth_normal import refine_depth
 from phyir.errors import InputError, PhyIRError
 from phyir.filters import guided_upsample
+from phyir.gravity import LEVEL_DEG_FROM_DEPTH, snap_normals
 from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
@@ -59,6 +60,7 @@ MAX_AWAY_SHARE = 0.05
 # further than ~0.02 in log depth from the normals' are occlusions
 REFINE_ANCHOR = 3e-3
 REFINE_TAU = 0.02
+FALLBACK_PASSES = 4  # refinement passes when the normals come from the depth (the fallback)
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 # the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
 # 32, W = 2H, at most this.  Peak memory of predict on an input of the net's size (lite model, CPU,
@@ -396,16 +398,24 @@ def _plausible_gmnet(model: Any, xn: Tensor, report: PredictReport) -> dict[str,
 
 
 def _consistent_depth(gm: dict[str, Tensor], plan: _Plan, report: PredictReport) -> None:
-    """GMNet's depth made to follow its normals (:func:`phyir.depth_normal.refine_depth`): planes come
-    out planar and the two layers agree. Only where the normals are the network's and plausible (a
-    collapsed normal head would bend the depth) and the depth is predicted, not the input's."""
+    """GMNet's depth made to follow gravity-aligned normals (:func:`phyir.gravity.snap_normals`,
+    :func:`phyir.depth_normal.refine_depth`): floors level, walls plumb, planes planar, and the two
+    layers agree. The normals are the network's where plausible; where its normal head failed, the
+    depth's own, snapped with the wider tolerance and re-derived a few times (each pass levels the
+    floor a little more). Only where the depth is predicted, not the input's."""
     if "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
         return
-    if away_share(gm["normal"][0]) > MAX_AWAY_SHARE:
-        return
     # float32 is enough (1.8e-6 from float64 on a real room) at half the time: 0.16 s at 256x512
-    gm["depth"] = refine_depth(gm["depth"].float(), gm["normal"].float(),
-                               anchor=REFINE_ANCHOR, tau=REFINE_TAU).to(gm["depth"].dtype)
+    depth = gm["depth"].float()
+    if away_share(gm["normal"][0]) <= MAX_AWAY_SHARE:
+        normal = snap_normals(gm["normal"].float())
+        depth = refine_depth(depth, normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
+        gm["normal"] = normal.to(gm["normal"].dtype)
+    else:
+        for _ in range(FALLBACK_PASSES):
+            normal = snap_normals(pano.normals_from_depth(depth), level_deg=LEVEL_DEG_FROM_DEPTH)
+            depth = refine_depth(depth, normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
+    gm["depth"] = depth.to(gm["depth"].dtype)
     report.depth_refined = True
 
 
@@ -451,7 +461,7 @@ def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide
         report.normals_from = "network"
         return normal
     report.normals_from = "depth"
-    nd = pano.normals_from_depth(depth_lo.float())
+    nd = snap_normals(pano.normals_from_depth(depth_lo.float()), level_deg=LEVEL_DEG_FROM_DEPTH)
     if tuple(nd.shape[-2:]) == tuple(normal.shape[-2:]):
         return nd
     return _upsample_layer("normal", nd, guide_lo, guide_hi)

@@ -219,14 +219,38 @@ def load_model(path: str | os.PathLike | None = None, device: str | torch.device
     return model.to(device).eval()
 
 
+def model_from_checkpoint(path: str | os.PathLike):
+    """The model of a training checkpoint (``<run>/<stage>/checkpoint.pt``) in eval mode: the weights
+    of a run stopped by ``--max-minutes``/``--max-steps``, which exports nothing itself."""
+    from phyir.learn.checkpoints import load_checkpoint
+    from phyir.nets.model import ModelConfig, PhyIRModel
+
+    ck = load_checkpoint(Path(path))
+    try:
+        model = PhyIRModel(ModelConfig.from_dict(ck["model_config"]))
+        model.load_state_dict(ck["model"])
+    except (KeyError, TypeError, RuntimeError) as e:
+        raise InputError(path, f"checkpoint without a loadable model ({str(e).splitlines()[0]})") from None
+    return model.eval()
+
+
 def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = None) -> Path:
-    """Store a trained export ``src`` as release weights ``dst``: float16 tensors (half the size; the
-    loader casts back) and ``src``'s sidecar with ``extra`` merged in."""
-    model = load_model(src)
+    """Store a trained export ``src`` (weights, or a training checkpoint ``.pt``) as release weights
+    ``dst``: float16 tensors (half the size; the loader casts back) and ``src``'s sidecar with ``extra``
+    merged in (a checkpoint's own run options and position when it has no sidecar)."""
     info: dict = {}
-    if sidecar_path(src).is_file():
-        info = json.loads(sidecar_path(src).read_text())
-        info.pop("architecture", None)
+    if Path(src).suffix == ".pt":
+        from phyir.learn.checkpoints import load_checkpoint
+
+        model = model_from_checkpoint(src)
+        ck = load_checkpoint(Path(src))
+        info = {"from_checkpoint": {k: ck.get(k) for k in ("epoch", "batch", "step", "seconds")},
+                "config": ck.get("config")}
+    else:
+        model = load_model(src)
+        if sidecar_path(src).is_file():
+            info = json.loads(sidecar_path(src).read_text())
+            info.pop("architecture", None)
     info |= {"stored_as": "float16", "shipped_from": str(src)} | (extra or {})
     return save_weights(model, dst, info, half=True)
 
@@ -235,5 +259,5 @@ if __name__ == "__main__":  # python -m phyir.learn.weights ship SRC DST
     import sys
 
     if len(sys.argv) != 4 or sys.argv[1] != "ship":
-        sys.exit("usage: python -m phyir.learn.weights ship SRC.safetensors DST.safetensors")
+        sys.exit("usage: python -m phyir.learn.weights ship SRC.safetensors|CHECKPOINT.pt DST.safetensors")
     print(ship(sys.argv[2], sys.argv[3]))

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from phyir import inference, pano
+from phyir.gravity import LEVEL_DEG_FROM_DEPTH, snap_normals
 from phyir.scene import PanoScene
 from phyir.synth.analytic import box_room
 
@@ -86,7 +87,8 @@ def test_normals_fall_back_to_the_depth_when_no_pass_is_plausible():
                                                 outputs=("depth", "normal"), probes=None)
     assert report.normals_from == "depth" and report.normals_away > 0.4
     depth, truth = box_room(H, W, LO, HI)
-    assert torch.allclose(out.normal, pano.normals_from_depth(out.depth), atol=1e-6)
+    from_depth = snap_normals(pano.normals_from_depth(out.depth), level_deg=LEVEL_DEG_FROM_DEPTH)
+    assert torch.allclose(out.normal, from_depth, atol=1e-6)
     assert inference.away_share(out.normal) == 0.0
     # the box's faces are planar: their depth normals are exact away from the edges
     assert float(angle_deg(out.normal, truth.float()).median()) < 1.0
@@ -129,8 +131,9 @@ def test_predicted_depth_is_refined_to_follow_plausible_normals():
     assert report.depth_refined and out.meta["predict.depth"] == "refined by the normals"
     # (at predict's anchor the depth keeps part of a bend this global: 0.046 vs 0.070)
     assert _planarity_error(out.depth, truth) < 0.75 * _planarity_error(raw, truth)
-    # the normal layer is the network's, and the depth now agrees with it
-    assert torch.equal(out.normal, gm(dark_top[None])["normal"][0])
+    # the normal layer is the network's (exact box normals: level and plumb already), and the depth
+    # now agrees with it
+    assert torch.allclose(out.normal, gm(dark_top[None])["normal"][0], atol=1e-6)
     after = float(angle_deg(pano.normals_from_depth(out.depth), out.normal).mean())
     before = float(angle_deg(pano.normals_from_depth(raw), out.normal).mean())
     assert after < 0.5 * before, (after, before)
@@ -140,11 +143,22 @@ def test_predicted_depth_is_refined_to_follow_plausible_normals():
     assert not report.depth_refined and torch.allclose(plain.depth, raw)
 
 
-def test_depth_is_not_refined_by_collapsed_normals_or_when_given():
-    gm = StubGM(collapse_both=True)
-    _, report = inference.predict_with_report(lamp_panorama(), model=StubModel(gm),
-                                              outputs=("depth", "normal"), probes=None)
-    assert not report.depth_refined
+def test_collapsed_normals_leave_a_levelled_depth_and_its_normals():
+    """The fallback: the depth's own normals, gravity-snapped, refine a bowl-shaped depth a few times
+    (floors level out), and the normal layer comes from that depth; a given depth is never touched."""
+    gm = BentGM(collapse_both=True)
+    out, report = inference.predict_with_report(lamp_panorama(), model=StubModel(gm),
+                                                outputs=("depth", "normal"), probes=None)
+    with torch.no_grad():
+        raw = gm(lamp_panorama()[None])["depth"][0]
+    assert report.normals_from == "depth" and report.depth_refined
+    truth, truth_n = (x.float() for x in box_room(H, W, LO, HI))
+    lat = torch.rad2deg(pano.pixel_lonlat(H, W)[1])
+    band = (lat < -20) & (lat > -65)  # the floor, where the bowl tilts the depth's normals
+    tilt = lambda n: angle_deg(n, truth_n)[band].mean()  # noqa: E731
+    plain = pano.normals_from_depth(raw)
+    assert float(tilt(out.normal)) < 0.5 * float(tilt(plain)), (tilt(out.normal), tilt(plain))
+    assert _planarity_error(out.depth, truth) < _planarity_error(raw, truth)
     given = PanoScene(image=lamp_panorama().flip(-2), depth=torch.full((1, H, W), 2.0))
     out, report = inference.predict_with_report(given, model=StubModel(BentGM()), outputs=("normal",),
                                                 probes=None)

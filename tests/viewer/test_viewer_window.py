@@ -280,3 +280,18 @@ def test_f12_saves_a_screenshot_next_to_the_file(app, scene_file):
     shot = np.asarray(Image.open(out))
     assert shot.shape[:2] == app.surface.framebuffer_size[::-1] and shot.std() > 3
 
+
+
+def test_screenshots_do_not_read_the_window_systems_buffer(app, scene_file, monkeypatch):
+    """A captured frame is drawn off-screen and read from there: the back buffer's pixels belong to
+    the window system (read back all black in a loaded CI run while the window was resized)."""
+    from OpenGL import GL as gl
+
+    app.open(scene_file)
+    assert app.wait_idle(60) and app.error is None
+    black = lambda x, y, w, h, *a: bytes(3 * w * h)  # noqa: E731 - a window system that lost the frame
+    monkeypatch.setattr(gl, "glReadPixels", black)
+    shot = app.screenshot()
+    assert shot.shape[:2] == app.surface.framebuffer_size[::-1] and shot.std() > 3
+    app.frame()  # and the next ordinary frame is drawn to the window again
+    assert app.surface.target() is not app.surface.target(offscreen=True)

@@ -209,7 +209,7 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         if self.gui is not None:
             self.gui.build()
         parts.mark("ui build")
-        target = self.surface.target()
+        target = self.surface.target(offscreen=capture)
         target.use()
         self.ctx.viewport = (0, 0, fw, fh)
         target.clear(*BACKGROUND, 1.0, viewport=(0, 0, fw, fh))

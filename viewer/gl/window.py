@@ -90,8 +90,8 @@ class Headless:
     def content_scale(self) -> float:
         return self.scale
 
-    def target(self) -> moderngl.Framebuffer:
-        """The framebuffer frames are drawn into (an off-screen canvas of framebuffer_size)."""
+    def target(self, offscreen: bool = True) -> moderngl.Framebuffer:
+        """The framebuffer frames are drawn into (an off-screen canvas of framebuffer_size, always)."""
         size = self.framebuffer_size
         if getattr(self, "_canvas", None) is None or self._canvas.size != size:
             self._release_canvas()
@@ -197,18 +197,45 @@ class Window:
         (w, _), (fw, _) = self.size, self.framebuffer_size
         return fw / w if w else 1.0
 
-    def target(self) -> moderngl.Framebuffer:
-        """The window's back buffer (drawn directly: a blit costs ~10 ms on software GL).  Its
-        ``size`` is stale after a resize: use ``framebuffer_size``."""
+    def target(self, offscreen: bool = False) -> moderngl.Framebuffer:
+        """The window's back buffer (drawn directly: a blit costs ~10 ms on software GL; its ``size``
+        is stale after a resize: use ``framebuffer_size``), or with ``offscreen`` a canvas of
+        framebuffer_size that ``read`` reads and then copies to the back buffer: a frame to capture.
+        The back buffer's pixels are the window system's (read back all black in a loaded CI run
+        while the window was being resized), the canvas's are ours."""
+        if offscreen:
+            size = self.framebuffer_size
+            if getattr(self, "_canvas", None) is None or self._canvas.size != size:
+                self._release_canvas()
+                self._canvas = self.ctx.framebuffer([self.ctx.renderbuffer(size, 4)])
+            self._drawn = self._canvas
+            return self._canvas
         if getattr(self, "_screen", None) is None:
             self._screen = self.ctx.detect_framebuffer(0)
+        self._drawn = self._screen
         return self._screen
 
+    def _release_canvas(self) -> None:
+        if getattr(self, "_canvas", None) is not None:
+            self._canvas.color_attachments[0].release()
+            self._canvas.release()
+            self._canvas = None
+
     def read(self) -> np.ndarray:
-        """The frame just drawn (before ``present``), uint8 RGB, rows from the top."""
+        """The frame just drawn (before ``present``), uint8 RGB, rows from the top.  A frame drawn
+        off-screen is read from its canvas, then copied to the back buffer to be shown."""
         from OpenGL import GL as gl
 
         w, h = self.framebuffer_size
+        canvas = getattr(self, "_canvas", None)
+        if canvas is not None and getattr(self, "_drawn", None) is canvas:
+            cw, ch = canvas.size
+            img = np.frombuffer(canvas.read(components=3), np.uint8).reshape(ch, cw, 3)[::-1].copy()
+            gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, canvas.glo)
+            gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, 0)
+            gl.glBlitFramebuffer(0, 0, cw, ch, 0, 0, cw, ch, gl.GL_COLOR_BUFFER_BIT, gl.GL_NEAREST)
+            gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, 0)
+            return img
         gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, 0)
         gl.glReadBuffer(gl.GL_BACK)
         gl.glPixelStorei(gl.GL_PACK_ALIGNMENT, 1)
@@ -242,6 +269,8 @@ class Window:
         self.glfw.set_drop_callback(self.window, lambda _w, paths: fn(list(paths)))
 
     def close(self) -> None:
+        with self.current():
+            self._release_canvas()
         self.glfw.destroy_window(self.window)
         if _made_current[0] is self.window:
             _made_current[0] = None
