@@ -86,18 +86,22 @@ def refine_depth(depth: Tensor, normal: Tensor, *, anchor: float = 0.02, tau: fl
                  iters: int = 200) -> Tensor:
     """Radial depth ``[..., 1, H, W]`` made consistent with ``normal`` ``[..., 3, H, W]``.
 
-    Minimises ``sum w (grad z - g)^2 + anchor * sum (z - z0)^2`` over log depth z, with g the normals'
-    steps, z0 the input's log depth and w the steps' weights times their :func:`agreement` with z0 (so
-    occlusion edges stay where the depth put them). ``anchor`` sets how far (~1/sqrt(anchor) pixels)
-    the normals may reshape the depth.
+    Minimises ``sum w (grad z - g)^2 + anchor * sum cos(lat) (z - z0)^2`` over log depth z, with g the
+    normals' steps, z0 the input's log depth and w the steps' weights times their :func:`agreement`
+    with z0 (so occlusion edges stay where the depth put them). ``anchor`` sets how far
+    (~1/sqrt(anchor) pixels at the equator) the normals may reshape the depth.
     """
     z0 = torch.log(depth.clamp_min(1e-6))
     steps = log_depth_steps(normal.to(z0.dtype))
     wx, wy = agreement(z0, steps, tau)
+    # the anchor per unit solid angle: a pixel near a pole covers cos(latitude) of an equator pixel's
+    # view, and there the network's depth is least reliable (the tripod, the stitch, the distortion)
+    H, W = depth.shape[-2:]
+    a = anchor * torch.cos(pano.pixel_lonlat(H, W, z0.device, z0.dtype)[1])[:, :1]
     def apply(z: Tensor) -> Tensor:
         zx, zy = forward_differences(z)
-        return anchor * z + _div(wx * zx, wy * zy)
-    b = anchor * z0 + _div(wx * steps.gx, wy * steps.gy)
+        return a * z + _div(wx * zx, wy * zy)
+    b = a * z0 + _div(wx * steps.gx, wy * steps.gy)
     z = _conjugate_gradients(apply, b, z0, iters)
     return torch.exp(z)
 

@@ -94,3 +94,21 @@ def test_steps_ignore_grazing_views(grazing):
     rows = (lat < -math.radians(20)) if not grazing else (lat.abs() < math.radians(3))
     w = float(s.wx[0][rows].mean())
     assert (w == 1.0) if not grazing else (w == 0.0)
+
+
+def test_the_anchor_weighs_a_pixel_by_its_solid_angle():
+    """The depth's pull is per unit solid angle: the same smooth bump is flattened further near the
+    nadir, where each pixel covers cos(latitude) of an equator pixel's view, than at the horizon."""
+    H, W = 64, 128
+    depth, normal = box_room(H, W)
+    rows = torch.arange(H, dtype=torch.float64)[:, None]
+    cols = torch.arange(W, dtype=torch.float64)[None, :]
+
+    def bump(row: int) -> torch.Tensor:  # +4 % at its centre, 3 px wide: 1-2 % steps, not an occlusion
+        return 1 + 0.04 * torch.exp(-((rows - row) ** 2 + (cols - 40) ** 2) / (2 * 3.0 ** 2))
+
+    left = {}
+    for name, row in (("horizon", H // 2 + 4), ("nadir", H - 5)):
+        fixed = refine_depth(depth * bump(row), normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
+        left[name] = float((fixed / depth - 1).abs()[0, row - 2:row + 3, 37:44].max())
+    assert left["nadir"] < 0.5 * left["horizon"], left
