@@ -216,7 +216,6 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             else:
                 set_uniform(prog, "n_objects", 0)
                 set_uniform(prog, "n_lights", 0)
-                set_uniform(prog, "n_proxies", 0)
             self.draw_fullscreen(prog)
             a, b, c = (_read_rgba(fbo, i, w, h) for i in range(3))
             return {"composite": a[..., :3].copy(), "alpha": a[..., 3].copy(), "object": b[..., :3].copy(),
@@ -266,18 +265,17 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             fbo.release()
 
     def draft_targets(self, w: int, h: int) -> tuple:
-        """The viewer's draft composite targets at w x h (kept while the size stays): a framebuffer
-        and its two linear-filtered float textures (objects, the receivers' kept share)."""
+        """The viewer's draft composite target at w x h (kept while the size stays): a framebuffer
+        and its linear-filtered float texture (the receivers' kept share)."""
         have = self._fbos.get("draft")
         if have is not None and have[1].size == (w, h):
             return have
         for r in have or ():
             r.release()
-        texs = [self.ctx.texture((w, h), 4, dtype="f2") for _ in range(2)]
-        for t in texs:
-            t.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            t.repeat_x = t.repeat_y = False
-        self._fbos["draft"] = (self.ctx.framebuffer(texs), *texs)
+        keep = self.ctx.texture((w, h), 4, dtype="f2")
+        keep.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        keep.repeat_x = keep.repeat_y = False
+        self._fbos["draft"] = (self.ctx.framebuffer([keep]), keep)
         return self._fbos["draft"]
 
     def release(self) -> None:
@@ -383,15 +381,16 @@ class InsertionPass:
         return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
 
     def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
-        """The objects and their shadows at ``quality.composite_scale`` of the region's resolution,
-        then put over the layer at full resolution (the panorama stays sharp while they move)."""
+        """The receivers (the objects' shadows) at ``quality.composite_scale`` of the region's
+        resolution, then put over the layer with the objects at full resolution (the panorama and
+        the objects' edges stay sharp while they move)."""
         ins, ctx = self.insertion, self.insertion.ctx
         target = ctx.fbo
         x, y, w, h = frame.rect
         rx, ry, rw, rh = rect
         s = quality.composite_scale
         cw, ch = max(1, math.ceil(rw * s)), max(1, math.ceil(rh * s))
-        fbo, obj_tex, keep_tex = ins.draft_targets(cw, ch)
+        fbo, keep_tex = ins.draft_targets(cw, ch)
         prog, up = self._draft_programs(frame, quality)
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         fbo.use()
@@ -406,9 +405,8 @@ class InsertionPass:
         region = (x + rx, fb_h - y - ry - rh, rw, rh)
         ctx.viewport = region
         self._frame_program(up, renderer, frame, (x, y, w, h), fb_h)
-        obj_tex.use(13)
+        ins.impostor_uniforms(up, drawn)
         keep_tex.use(14)
-        set_uniform(up, "draft_object", 13)
         set_uniform(up, "draft_keep", 14)
         set_uniform(up, "draft_rect", tuple(float(r) for r in region))
         set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))

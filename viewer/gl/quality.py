@@ -37,6 +37,6 @@ FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
                    peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03,
                    impostor_faces=2048, shadow_faces=1024, proxy_lookups=False, blocker_search=False,
-                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05, composite_scale=0.5)
+                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05, composite_scale=0.25)
 # exports at draft quality (phyir insert --quality draft): the light where the object is, no grid steps
 DRAFT_EXPORT = replace(DRAGGING, light_grid=0.0)
