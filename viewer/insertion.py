@@ -22,6 +22,7 @@ context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import replace
 
 import moderngl
@@ -65,6 +66,10 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.programs = ProgramCache(ctx)
         self._meshes: dict[int, tuple] = {}
         self._objects: dict[int, ObjectGPU] = {}
+        self._relights: dict = {}
+        self._relight_pool = None
+        self._field_lock = threading.Lock()
+        self._relight_after = 0.0
         self._fbos: dict[str, tuple] = {}
         self._tile_keys: dict[tuple, tuple] = {}
         self.scene: PanoScene | None = None
@@ -142,6 +147,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.has_albedo = scene.albedo is not None
 
     def release_scene(self) -> None:
+        self.wait_lighting()  # jobs read the old field
+        self._relights.clear()
         for t in self._scene_tex.values():
             t.release()
         self._scene_tex.clear()
@@ -163,12 +170,13 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         set_uniform(prog, "jump_threshold", float(self.surface.jump_threshold))
 
     # -- in the viewer: the overlay pass (InsertionPass) ------------------------------------
-    def screen_rect(self, drawn: list[tuple[ObjectGPU, Tile]], view, size: tuple[int, int]
-                    ) -> tuple[int, int, int, int] | None:
-        """(x, y, w, h) view pixels (y from the top) bounding what the objects change, or None."""
+    def screen_rect(self, drawn: list[tuple[ObjectGPU, Tile]], view, size: tuple[int, int],
+                    reach: bool = True) -> tuple[int, int, int, int] | None:
+        """(x, y, w, h) view pixels (y from the top) bounding what the objects change (with
+        ``reach``: their shadows and occlusion too, else the objects themselves), or None."""
         w, h = size
         H, W = self.scene.size
-        pts = np.concatenate([_reach_points(st) for st, _ in drawn])
+        pts = np.concatenate([_reach_points(st) if reach else _outline_points(st) for st, _ in drawn])
         u, v, _ = pano.points_to_uv(torch.from_numpy(pts), H, W, dim=-1)
         u, v = u.numpy(), v.numpy()
         if isinstance(view, EquirectView):
@@ -291,6 +299,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
                 if hasattr(r, "release"):
                     r.release()
         self._fbos.clear()
+        if self._relight_pool is not None:
+            self._relight_pool.shutdown()
         self.programs.release()
         self.dfg.release()
 
@@ -310,6 +320,7 @@ class InsertionPass:
         self.objects: list[SceneObject] = objects if objects is not None else []
         self.enabled = True
         self.dragging = False
+        self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
 
@@ -326,7 +337,7 @@ class InsertionPass:
         vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
         x, y, w, h = frame.rect
         fb_h = vy + y + h
-        quality = DRAGGING if self.dragging else FULL
+        quality = replace(DRAGGING, background_lighting=self.background_lighting) if self.dragging else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
         target.use()
@@ -410,7 +421,16 @@ class InsertionPass:
         set_uniform(up, "draft_keep", 14)
         set_uniform(up, "draft_rect", tuple(float(r) for r in region))
         set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
+        # the objects' look-ups only where they can be (they cost as much as the rest of the pass)
+        set_uniform(up, "n_objects", 0)
         ins.draw_fullscreen(up)
+        outline = ins.screen_rect(drawn, frame.view, (w, h), reach=False)
+        if outline is not None:
+            ox0, oy0 = max(outline[0], rx), max(outline[1], ry)
+            ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
+            ctx.viewport = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0)
+            set_uniform(up, "n_objects", len(drawn))
+            ins.draw_fullscreen(up)
 
 
 def _composite_defines(quality: Quality) -> dict[str, int]:
@@ -423,6 +443,21 @@ def _reach_points(st: ObjectGPU) -> np.ndarray:
     c = st.centre[None]
     halo = c + (st.reach[:N_HALO] - c) * (st.halo / HALO)
     return np.concatenate([halo, st.reach[N_HALO:]])
+
+
+def _outline_points(st: ObjectGPU, n: int = 16) -> np.ndarray:
+    """Directions around the cone from the panorama's centre that holds the object's bounding sphere
+    (a little wider, as its impostor camera's: ``ImpostorPasses.prepare``)."""
+    dist = float(np.linalg.norm(st.centre))
+    axis = st.centre / dist
+    half = math.asin(min(st.radius / dist, 0.98)) * 1.03 + 1e-3
+    a = np.cross(axis, [0.0, 1.0, 0.0] if abs(axis[1]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+    phi = np.linspace(0, 2 * math.pi, n, endpoint=False)[:, None]
+    ring = np.cos(phi) * a + np.sin(phi) * b
+    # the polygon's edges touch the circle: it holds the cone
+    return math.cos(half) * axis + math.sin(half) * ring / math.cos(math.pi / n)
 
 
 def _hwc(t: torch.Tensor) -> np.ndarray:
