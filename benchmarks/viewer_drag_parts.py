@@ -64,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
         ins.draw_fullscreen = timed("composite passes", ins.draw_fullscreen)
         bench_drag(app, args.frames)
         for name, t in times.items():  # three still frames first, the full-quality one after release last
-            drag = np.array(t[3:-1]).reshape(args.frames, -1)  # composite: the draft, then over the layer
+            # composite: the receivers at 1/4, over the layer, the objects over their outline
+            drag = np.array(t[3:-1]).reshape(args.frames, -1)
             parts = " + ".join(f"{1000 * np.median(c):.1f}" for c in drag.T)
             print(f"{name}: median {parts} ms a dragging frame ({args.frames} frames); {1000 * t[-1]:.0f} ms "
                   f"in the full-quality frame after release")

@@ -16,6 +16,7 @@
 #include "scene.glsl"
 #include "view.glsl"
 #include "occlusion.glsl"
+#include "impostors.glsl"
 #ifndef VIEWER
 #define VIEWER 0
 #endif
@@ -35,19 +36,14 @@
 #define BLOCKER_SEARCH 1  // 0: PCSS without its blocker search: the blocker at the object's bounding sphere
 #endif
 #ifndef DRAFT
-#define DRAFT 0  // 1 (with VIEWER): objects and the receivers' kept share only, at a lower resolution
-#endif           // (composite_up.frag puts them over the full-resolution layer)
-#define MAX_OBJECTS 8
+#define DRAFT 0  // 1 (with VIEWER): the receivers' kept share only, at a lower resolution
+#endif           // (composite_up.frag puts it and the objects over the full-resolution layer)
 #define MAX_LIGHTS 16
 #define MAX_PROXIES 64
 
-uniform sampler2D imp_atlas;          // object radiance (rgb) and visibility (a), one tile per object
 uniform sampler2D shadow_atlas;       // distance from each light to the object, one tile per light
 uniform int has_albedo;
 
-uniform int n_objects;
-uniform mat4 imp_vp[MAX_OBJECTS];     // world -> clip of each object's impostor camera
-uniform vec4 imp_tile[MAX_OBJECTS];   // (s0, t0, ds, dt) of its tile in imp_atlas
 uniform vec4 obj_sphere[MAX_OBJECTS]; // bounding sphere (centre, radius)
 uniform float obj_reach[MAX_OBJECTS]; // occlusion fades out toward this distance from the centre
 uniform vec3 amb_full[MAX_OBJECTS * 6];  // irradiance / pi of the object's probe around +-x, +-y, +-z
@@ -72,16 +68,18 @@ uniform vec4 light_tile[MAX_LIGHTS];
 uniform float shadow_texel;              // ndc size of one shadow-map texel
 uniform int shadow_taps;                 // Poisson taps of the blocker search and of the filter (<= 16)
 
-uniform int n_proxies;
-uniform int proxy_obj[MAX_PROXIES];
+uniform ivec2 proxy_range[MAX_OBJECTS];  // object k's proxies: proxy[x, y) (a loop over only its own:
+                                         // software GL pays every iteration of every pixel)
 uniform vec4 proxy[MAX_PROXIES];         // spheres (centre, radius) standing in for each object's volume
 
+#if VIEWER && DRAFT
+layout(location = 0) out vec4 out_keep;     // the receiver's kept share of its light (rgb), 1
+#else
 layout(location = 0) out vec4 out_colour;   // composite (rgb), object alpha (a)
+#endif
 #if !VIEWER
 layout(location = 1) out vec4 out_object;   // object radiance x alpha (rgb), alpha
 layout(location = 2) out vec4 out_shadow;   // shadow matte (fraction of light removed), dE / pi, 0, 1
-#elif DRAFT
-layout(location = 1) out vec4 out_keep;     // the receiver's kept share of its light (rgb), 1
 #endif
 
 const vec2 POISSON[16] = vec2[16](
@@ -166,17 +164,11 @@ void main() {
     vec3 keep = vec3(1.0);  // the share of the receiver's light the objects leave
     if (inside) {
         vec3 d = uv_to_dir(uv, scene_size);
-        // -- the objects (impostor tiles, premultiplied), sorted far to near by the caller
-        for (int k = 0; k < n_objects; ++k) {
-            vec4 c = imp_vp[k] * vec4(d, 1.0);
-            if (c.w <= 1e-6) continue;
-            vec2 ndc = c.xy / c.w;
-            if (any(greaterThan(abs(ndc), vec2(1.0)))) continue;
-            vec4 t = imp_tile[k];
-            vec4 s = texture(imp_atlas, t.xy + (ndc * 0.5 + 0.5) * t.zw);
-            obj_rgb = s.rgb + (1.0 - s.a) * obj_rgb;
-            alpha = s.a + (1.0 - s.a) * alpha;
-        }
+#if !DRAFT  // the draft's objects: composite_up.frag, at full resolution
+        vec4 seen = objects_seen(d);
+        obj_rgb = seen.rgb;
+        alpha = seen.a;
+#endif
         // -- the scene surface as a receiver
         float depth = scene_depth_at(d);
         if (depth > 0.0) {
@@ -209,8 +201,7 @@ void main() {
                 vec3 hid_dir = vec3(0.0);
                 float hid_cone = 0.0;
 #endif
-                for (int q = 0; q < n_proxies; ++q) {
-                    if (proxy_obj[q] != k) continue;
+                for (int q = proxy_range[k].x; q < proxy_range[k].y; ++q) {
                     vec3 w = proxy[q].xyz - x;
                     float dd = max(dot(w, w), 1e-12);
                     float sin2 = proxy[q].w * proxy[q].w / dd;
@@ -243,8 +234,7 @@ void main() {
                 // the receiver's specular lobe (around rs, half-width lobe_w) meeting the proxies
                 float seen = 1.0, f_sum = 0.0;
                 vec3 l_seen = vec3(0.0);
-                for (int q = 0; q < n_proxies; ++q) {
-                    if (proxy_obj[q] != k) continue;
+                for (int q = proxy_range[k].x; q < proxy_range[k].y; ++q) {
                     vec3 w = proxy[q].xyz - x;
                     float dist = length(w);
                     float sigma = asin(min(proxy[q].w / dist, 1.0));
@@ -305,7 +295,6 @@ void main() {
         result.a = alpha;
     }
 #if VIEWER && DRAFT
-    out_colour = vec4(obj_rgb, alpha);
     out_keep = vec4(keep, 1.0);
 #elif VIEWER
     out_colour = display_colour(vec4(result.rgb, inside ? 1.0 : 0.0));

@@ -22,6 +22,7 @@ context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import replace
 
 import moderngl
@@ -65,6 +66,10 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.programs = ProgramCache(ctx)
         self._meshes: dict[int, tuple] = {}
         self._objects: dict[int, ObjectGPU] = {}
+        self._relights: dict = {}
+        self._relight_pool = None
+        self._field_lock = threading.Lock()
+        self._relight_after = 0.0
         self._fbos: dict[str, tuple] = {}
         self._tile_keys: dict[tuple, tuple] = {}
         self.scene: PanoScene | None = None
@@ -142,6 +147,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.has_albedo = scene.albedo is not None
 
     def release_scene(self) -> None:
+        self.wait_lighting()  # jobs read the old field
+        self._relights.clear()
         for t in self._scene_tex.values():
             t.release()
         self._scene_tex.clear()
@@ -163,12 +170,13 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         set_uniform(prog, "jump_threshold", float(self.surface.jump_threshold))
 
     # -- in the viewer: the overlay pass (InsertionPass) ------------------------------------
-    def screen_rect(self, drawn: list[tuple[ObjectGPU, Tile]], view, size: tuple[int, int]
-                    ) -> tuple[int, int, int, int] | None:
-        """(x, y, w, h) view pixels (y from the top) bounding what the objects change, or None."""
+    def screen_rect(self, drawn: list[tuple[ObjectGPU, Tile]], view, size: tuple[int, int],
+                    reach: bool = True) -> tuple[int, int, int, int] | None:
+        """(x, y, w, h) view pixels (y from the top) bounding what the objects change (with
+        ``reach``: their shadows and occlusion too, else the objects themselves), or None."""
         w, h = size
         H, W = self.scene.size
-        pts = np.concatenate([_reach_points(st) for st, _ in drawn])
+        pts = np.concatenate([_reach_points(st) if reach else _outline_points(st) for st, _ in drawn])
         u, v, _ = pano.points_to_uv(torch.from_numpy(pts), H, W, dim=-1)
         u, v = u.numpy(), v.numpy()
         if isinstance(view, EquirectView):
@@ -216,7 +224,6 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             else:
                 set_uniform(prog, "n_objects", 0)
                 set_uniform(prog, "n_lights", 0)
-                set_uniform(prog, "n_proxies", 0)
             self.draw_fullscreen(prog)
             a, b, c = (_read_rgba(fbo, i, w, h) for i in range(3))
             return {"composite": a[..., :3].copy(), "alpha": a[..., 3].copy(), "object": b[..., :3].copy(),
@@ -266,18 +273,17 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             fbo.release()
 
     def draft_targets(self, w: int, h: int) -> tuple:
-        """The viewer's draft composite targets at w x h (kept while the size stays): a framebuffer
-        and its two linear-filtered float textures (objects, the receivers' kept share)."""
+        """The viewer's draft composite target at w x h (kept while the size stays): a framebuffer
+        and its linear-filtered float texture (the receivers' kept share)."""
         have = self._fbos.get("draft")
         if have is not None and have[1].size == (w, h):
             return have
         for r in have or ():
             r.release()
-        texs = [self.ctx.texture((w, h), 4, dtype="f2") for _ in range(2)]
-        for t in texs:
-            t.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            t.repeat_x = t.repeat_y = False
-        self._fbos["draft"] = (self.ctx.framebuffer(texs), *texs)
+        keep = self.ctx.texture((w, h), 4, dtype="f2")
+        keep.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        keep.repeat_x = keep.repeat_y = False
+        self._fbos["draft"] = (self.ctx.framebuffer([keep]), keep)
         return self._fbos["draft"]
 
     def release(self) -> None:
@@ -293,6 +299,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
                 if hasattr(r, "release"):
                     r.release()
         self._fbos.clear()
+        if self._relight_pool is not None:
+            self._relight_pool.shutdown()
         self.programs.release()
         self.dfg.release()
 
@@ -312,6 +320,7 @@ class InsertionPass:
         self.objects: list[SceneObject] = objects if objects is not None else []
         self.enabled = True
         self.dragging = False
+        self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
 
@@ -328,7 +337,7 @@ class InsertionPass:
         vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
         x, y, w, h = frame.rect
         fb_h = vy + y + h
-        quality = DRAGGING if self.dragging else FULL
+        quality = replace(DRAGGING, background_lighting=self.background_lighting) if self.dragging else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
         target.use()
@@ -383,15 +392,16 @@ class InsertionPass:
         return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
 
     def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
-        """The objects and their shadows at ``quality.composite_scale`` of the region's resolution,
-        then put over the layer at full resolution (the panorama stays sharp while they move)."""
+        """The receivers (the objects' shadows) at ``quality.composite_scale`` of the region's
+        resolution, then put over the layer with the objects at full resolution (the panorama and
+        the objects' edges stay sharp while they move)."""
         ins, ctx = self.insertion, self.insertion.ctx
         target = ctx.fbo
         x, y, w, h = frame.rect
         rx, ry, rw, rh = rect
         s = quality.composite_scale
         cw, ch = max(1, math.ceil(rw * s)), max(1, math.ceil(rh * s))
-        fbo, obj_tex, keep_tex = ins.draft_targets(cw, ch)
+        fbo, keep_tex = ins.draft_targets(cw, ch)
         prog, up = self._draft_programs(frame, quality)
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         fbo.use()
@@ -406,13 +416,21 @@ class InsertionPass:
         region = (x + rx, fb_h - y - ry - rh, rw, rh)
         ctx.viewport = region
         self._frame_program(up, renderer, frame, (x, y, w, h), fb_h)
-        obj_tex.use(13)
+        ins.impostor_uniforms(up, drawn)
         keep_tex.use(14)
-        set_uniform(up, "draft_object", 13)
         set_uniform(up, "draft_keep", 14)
         set_uniform(up, "draft_rect", tuple(float(r) for r in region))
         set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
+        # the objects' look-ups only where they can be (they cost as much as the rest of the pass)
+        set_uniform(up, "n_objects", 0)
         ins.draw_fullscreen(up)
+        outline = ins.screen_rect(drawn, frame.view, (w, h), reach=False)
+        if outline is not None:
+            ox0, oy0 = max(outline[0], rx), max(outline[1], ry)
+            ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
+            ctx.viewport = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0)
+            set_uniform(up, "n_objects", len(drawn))
+            ins.draw_fullscreen(up)
 
 
 def _composite_defines(quality: Quality) -> dict[str, int]:
@@ -425,6 +443,21 @@ def _reach_points(st: ObjectGPU) -> np.ndarray:
     c = st.centre[None]
     halo = c + (st.reach[:N_HALO] - c) * (st.halo / HALO)
     return np.concatenate([halo, st.reach[N_HALO:]])
+
+
+def _outline_points(st: ObjectGPU, n: int = 16) -> np.ndarray:
+    """Directions around the cone from the panorama's centre that holds the object's bounding sphere
+    (a little wider, as its impostor camera's: ``ImpostorPasses.prepare``)."""
+    dist = float(np.linalg.norm(st.centre))
+    axis = st.centre / dist
+    half = math.asin(min(st.radius / dist, 0.98)) * 1.03 + 1e-3
+    a = np.cross(axis, [0.0, 1.0, 0.0] if abs(axis[1]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+    phi = np.linspace(0, 2 * math.pi, n, endpoint=False)[:, None]
+    ring = np.cos(phi) * a + np.sin(phi) * b
+    # the polygon's edges touch the circle: it holds the cone
+    return math.cos(half) * axis + math.sin(half) * ring / math.cos(math.pi / n)
 
 
 def _hwc(t: torch.Tensor) -> np.ndarray:

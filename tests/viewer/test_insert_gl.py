@@ -8,6 +8,7 @@ spheres of the supplement's Table 2.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -245,3 +246,27 @@ def test_dragging_keeps_lighting_for_small_moves(renderer, room):
     obj.position, obj.support = far.position, far.support
     assert renderer.object_state(obj, DRAGGING).lighting is not lighting
     assert renderer.object_state(obj, FULL).lighting is not lighting
+
+
+def test_background_lighting_keeps_the_last_lighting_until_the_worker_has_the_new_one(renderer, room):
+    """With Quality.background_lighting (the viewer while dragging) a moved object keeps its last
+    lighting, moved with it, while a worker thread lights it where it now is; the next call swaps that
+    in: the probe the synchronous path computes there, bit for bit."""
+    renderer.set_scene(room)
+    q = dataclasses.replace(DRAGGING, background_lighting=True, relight_interval=0.0)
+    obj = _sphere(room, 40.5, 50.5, 0.2)
+    lighting = renderer.object_state(obj, q).lighting  # a new object: lit before it is drawn
+    assert not renderer.lighting_pending()
+    far = _sphere(room, 90.5, 52.5, 0.2)
+    obj.position, obj.support = far.position, far.support
+    st = renderer.object_state(obj, q)
+    assert st.lighting is lighting and renderer.lighting_pending()
+    np.testing.assert_allclose(st.centre, obj.bounding_sphere()[0])  # the shadow cameras follow
+    np.testing.assert_allclose(st.reach.mean(0) - lighting.reach.numpy().mean(0),
+                               st.centre - lighting.centre.numpy(), atol=1e-6)
+    renderer.wait_lighting()
+    st = renderer.object_state(obj, q)
+    assert st.lighting is not lighting and not renderer.lighting_pending()
+    sync = renderer.object_state(far, DRAGGING)
+    assert torch.equal(st.raw_probe, sync.raw_probe) and torch.equal(st.lighting.probe, sync.lighting.probe)
+    assert renderer.object_state(obj, FULL).lighting is not st.lighting  # release: full quality, at once

@@ -47,10 +47,13 @@ class Remote:
         changed = self.serve_remote()
         changed = self.poll() or changed
         animating = self.gui is not None and self.gui.animating()
-        if changed or self._redraw > 0 or self.busy or self._pending or animating:
+        refining = self.objects.refining()
+        if changed or self._redraw > 0 or self.busy or self._pending or animating or refining:
             self.frame()
         if self._redraw > 0 or self._pending:
             return 0.0
+        if refining:
+            return 0.01  # a background job's result shows in the next frame
         if self.busy or animating:
             return 0.1  # progress animation, slow: leaves the CPU to the model
         return 1.0  # idle: sleep until an event (the worker and the socket wake a window)

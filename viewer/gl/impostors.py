@@ -210,16 +210,8 @@ class ImpostorPasses:
     def composite_uniforms(self, prog: moderngl.Program, drawn: list[tuple[ObjectGPU, Tile]]) -> None:
         """The uniforms of ``composite.frag`` for the objects :meth:`prepare` drew: their impostor
         tiles, bounds, ambient terms, probes, shadow maps and proxy spheres."""
-        imp = self._fbos["impostors"][1]
-        aw, ah = imp.size
-        imp.use(11)
-        set_uniform(prog, "imp_atlas", 11)
+        self.impostor_uniforms(prog, drawn)
         set_uniform(prog, "has_albedo", int(self.has_albedo))
-        n = len(drawn)
-        set_uniform(prog, "n_objects", n)
-        write_array(prog, "imp_vp", np.stack([t.vp.T for _, t in drawn]))
-        write_array(prog, "imp_tile", [(t.rect[0] / aw, t.rect[1] / ah, t.rect[2] / aw, t.rect[3] / ah)
-                                  for _, t in drawn])
         write_array(prog, "obj_sphere", [(*st.centre, st.radius) for st, _ in drawn])
         write_array(prog, "obj_reach", [st.halo * st.radius for st, _ in drawn])
         write_array(prog, "amb_full", np.stack([st.amb_full for st, _ in drawn]))
@@ -249,16 +241,25 @@ class ImpostorPasses:
             write_array(prog, "light_tan", [lt[2] for _, lt in lights])
             write_array(prog, "light_near", [lt[3] for _, lt in lights])
             write_array(prog, "light_tile", [(i * s / sw, 0.0, s / sw, s / sh) for i in range(len(lights))])
-        proxies, owners = [], []
-        for k, (st, _) in enumerate(drawn):
-            for p in st.obj.world_proxies():
-                proxies.append(p)
-                owners.append(k)
-        proxies, owners = proxies[:MAX_PROXIES], owners[:MAX_PROXIES]
-        set_uniform(prog, "n_proxies", len(proxies))
+        proxies, ranges = [], []
+        for st, _ in drawn:
+            first = len(proxies)
+            proxies += list(st.obj.world_proxies())[:MAX_PROXIES - first]
+            ranges.append((first, len(proxies)))
+        write_array(prog, "proxy_range", ranges, np.int32)
         if proxies:
             write_array(prog, "proxy", np.stack(proxies))
-            write_array(prog, "proxy_obj", owners, np.int32)
+
+    def impostor_uniforms(self, prog: moderngl.Program, drawn: list[tuple[ObjectGPU, Tile]]) -> None:
+        """The uniforms of ``impostors.glsl`` (unit 11) for the objects :meth:`prepare` drew."""
+        imp = self._fbos["impostors"][1]
+        aw, ah = imp.size
+        imp.use(11)
+        set_uniform(prog, "imp_atlas", 11)
+        set_uniform(prog, "n_objects", len(drawn))
+        write_array(prog, "imp_vp", np.stack([t.vp.T for _, t in drawn]))
+        write_array(prog, "imp_tile", [(t.rect[0] / aw, t.rect[1] / ah, t.rect[2] / aw, t.rect[3] / ah)
+                                  for _, t in drawn])
 
     def _probe_array(self, drawn: list[tuple[ObjectGPU, Tile]]) -> moderngl.TextureArray:
         """The drawn objects' probes as one mipmapped texture array: layer 2k object k's probe without

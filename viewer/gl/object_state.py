@@ -1,10 +1,15 @@
 """Per-object GPU state of the insertion renderer (``viewer.insertion``): mesh buffers, and each
 object's lighting (the probe interpolated at its centre, its mip pyramid, irradiance map and the
-dominant lights' shadow cameras) uploaded as small textures, recomputed only when the object moved."""
+dominant lights' shadow cameras) uploaded as small textures, recomputed only when the object moved.
+With ``Quality.background_lighting`` (the viewer while dragging) a moved object's lighting is
+computed on a worker thread and swapped in when ready; frames meanwhile use the last one."""
 
 from __future__ import annotations
 
 import math
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import moderngl
@@ -38,11 +43,22 @@ class ObjectGPU:
     raw_probe: torch.Tensor  # the interpolated probe the lighting was computed from
     reach: np.ndarray  # [P, 3] lighting.reach moved with the object
     halo: float = HALO
+    lit_key: tuple | None = None  # the key its lighting was computed for (background lighting: may lag)
     lights: list = field(default_factory=list)  # (PlacedLight, view_proj, tan, near, size_m)
 
     def release(self) -> None:
         for t in (self.env, self.spec, self.irr):
             t.release()
+
+
+@dataclass
+class Relight:
+    """A background lighting job: for ``key`` (the object's key when it was asked for) at ``quality``;
+    ``future`` gives (raw probe, ObjectLighting or None: the probe changed less than the tolerance)."""
+
+    future: Future
+    key: tuple
+    quality: Quality
 
 
 def _hwc_bytes(t: torch.Tensor) -> bytes:
@@ -56,6 +72,10 @@ class ObjectStates:
 
     _meshes: dict[int, tuple]
     _objects: dict[int, ObjectGPU]
+    _relights: dict[int, Relight]  # id(obj) -> its background lighting job (at most one each)
+    _relight_pool: ThreadPoolExecutor | None
+    _field_lock: threading.Lock  # the probe field's caches: one thread at a time
+    _relight_after: float  # time.monotonic() before which no background job starts
 
     # -- meshes and per-object lighting -------------------------------------------------------
     def _mesh(self, m: Mesh) -> tuple:
@@ -74,6 +94,8 @@ class ObjectStates:
         alive = {id(o) for o in objects}
         for k in [k for k in self._objects if k not in alive]:
             self._objects.pop(k).release()
+        for k in [k for k in self._relights if k not in alive]:
+            del self._relights[k]  # it finishes unseen (the field's lock keeps it apart)
         used = {id(m) for o in objects for m in (o.mesh, *o.mesh.lods.values())}
         for k in [k for k in self._meshes if k not in used]:
             _mesh, vbo, ibo, vaos = self._meshes.pop(k)
@@ -97,39 +119,112 @@ class ObjectStates:
         quality changed (lights are placed with fewer marching steps while dragging).  With
         ``quality.relight_tolerance`` a moved object keeps its lighting (textures, lights) while the
         probe interpolated at its new centre differs from the one it was lit with by less than that
-        (relative L1); only its position-dependent parts (shadow cameras, reach) follow it."""
+        (relative L1); only its position-dependent parts (shadow cameras, reach) follow it.  With
+        ``quality.background_lighting`` a moved object's lighting is computed on a worker thread:
+        it keeps the last lighting (moved with it) until that is ready (:meth:`lighting_pending`)."""
         support = None if obj.support is None else np.concatenate(obj.support).round(6).tobytes()
         key = (id(obj.mesh), obj.scale, obj.position.round(6).tobytes(), obj.rotation.round(6).tobytes(),
                support, quality.march_steps)
         st = self._objects.get(id(obj))
+        if st is not None:
+            self._take_relight(st)
         if st is not None and st.key == key:
             st.obj = obj
+            if quality.background_lighting and st.lit_key != key:
+                self._relight_later(st, quality)
             return st
         centre, radius = obj.bounding_sphere()
-        # while dragging: one ray per texel, on the light grid (mostly cached)
-        raw = self.field.probe_at(torch.as_tensor(centre, dtype=torch.float32),
-                                  draft=quality.light_grid > 0, grid=quality.light_grid)
         same_shape = st is not None and st.key[:2] == key[:2] and st.key[-1] == key[-1]
-        if same_shape and quality.relight_tolerance > 0:
-            change = float((raw - st.raw_probe).abs().sum() / st.raw_probe.abs().sum().clamp(min=1e-12))
-            if change < quality.relight_tolerance:
-                st.obj, st.key, st.halo = obj, key, quality.halo
-                st.reach = st.lighting.reach.numpy() + (centre - st.lighting.centre.numpy())
-                st.centre, st.radius = centre, radius
-                st.lights = self._light_cameras(st.lighting, centre, radius)
-                return st
-        point, normal = obj.support if obj.support is not None else (centre - [0, radius, 0], (0, 1, 0))
-        lighting = object_lighting(self.field, torch.as_tensor(centre, dtype=torch.float32), self.surface,
-                                   radius=radius, steps=quality.march_steps,
-                                   support=(torch.as_tensor(point), torch.as_tensor(normal)), probe=raw,
-                                   previous=st.lighting if same_shape and quality.reuse_lights else None)
+        if same_shape and quality.background_lighting:
+            self._move(st, obj, key, centre, radius, quality.halo)
+            self._relight_later(st, quality)
+            return st
+        self._relights.pop(id(obj), None)
+        with self._field_lock:  # waits for a background job still using the field
+            old = (st.raw_probe, st.lighting) if same_shape else None
+            raw, lighting = self._lighting_at(obj.support, centre, radius, quality, old)
+        if lighting is None:  # the probe changed less than the tolerance
+            self._move(st, obj, key, centre, radius, quality.halo)
+            st.lit_key = key
+            return st
         env, spec, irr = self._lighting_textures(lighting, st)
         st = ObjectGPU(obj, key, lighting, env, spec, irr, lighting.ambient.numpy(),
                         lighting.ambient_bounce.numpy(), centre, radius, raw, lighting.reach.numpy(),
-                        quality.halo)
+                        quality.halo, key)
         st.lights = self._light_cameras(lighting, centre, radius)
         self._objects[id(obj)] = st
         return st
+
+    def _lighting_at(self, support: tuple | None, centre: np.ndarray, radius: float, quality: Quality,
+                     old: tuple[torch.Tensor, ObjectLighting] | None
+                     ) -> tuple[torch.Tensor, ObjectLighting | None]:
+        """(the probe at ``centre``, the object's lighting there); None for the lighting when the
+        probe differs from ``old``'s (raw probe, lighting) by less than ``quality.relight_tolerance``.
+        Any thread, holding the field's lock."""
+        # while dragging: one ray per texel, on the light grid (mostly cached)
+        raw = self.field.probe_at(torch.as_tensor(centre, dtype=torch.float32),
+                                  draft=quality.light_grid > 0, grid=quality.light_grid)
+        if old is not None and quality.relight_tolerance > 0:
+            change = float((raw - old[0]).abs().sum() / old[0].abs().sum().clamp(min=1e-12))
+            if change < quality.relight_tolerance:
+                return raw, None
+        point, normal = support if support is not None else (centre - [0, radius, 0], (0, 1, 0))
+        lighting = object_lighting(self.field, torch.as_tensor(centre, dtype=torch.float32), self.surface,
+                                   radius=radius, steps=quality.march_steps,
+                                   support=(torch.as_tensor(point), torch.as_tensor(normal)), probe=raw,
+                                   previous=old[1] if old is not None and quality.reuse_lights else None)
+        return raw, lighting
+
+    def _move(self, st: ObjectGPU, obj: SceneObject, key: tuple, centre: np.ndarray, radius: float,
+              halo: float) -> None:
+        """``st`` keeps its lighting; its position-dependent parts (reach, shadow cameras) follow."""
+        st.obj, st.key, st.halo = obj, key, halo
+        st.reach = st.lighting.reach.numpy() + (centre - st.lighting.centre.numpy())
+        st.centre, st.radius = centre, radius
+        st.lights = self._light_cameras(st.lighting, centre, radius)
+
+    # -- background lighting (the viewer while dragging) --------------------------------------
+    def _relight_later(self, st: ObjectGPU, quality: Quality) -> None:
+        """Compute ``st``'s lighting where its object now is on the worker thread, unless a job for it
+        is running (when that one is taken, the latest position gets the next) or the last one ended
+        less than ``quality.relight_interval`` ago (the worker would take a core from the frames)."""
+        if id(st.obj) in self._relights or time.monotonic() < self._relight_after:
+            return
+        if self._relight_pool is None:
+            self._relight_pool = ThreadPoolExecutor(1, thread_name_prefix="phyir-relight")
+        # the job gets what the UI thread may change meanwhile as it is now
+        args = (st.obj.support, st.centre, st.radius, quality, (st.raw_probe, st.lighting))
+
+        def job() -> tuple[torch.Tensor, ObjectLighting | None]:
+            with self._field_lock:
+                return self._lighting_at(*args)
+
+        self._relights[id(st.obj)] = Relight(self._relight_pool.submit(job), st.key, quality)
+
+    def _take_relight(self, st: ObjectGPU) -> None:
+        """Swap in ``st``'s finished background lighting (GL thread: uploads its textures)."""
+        job = self._relights.get(id(st.obj))
+        if job is None or not job.future.done():
+            return
+        del self._relights[id(st.obj)]
+        raw, lighting = job.future.result()
+        self._relight_after = time.monotonic() + job.quality.relight_interval
+        st.raw_probe, st.lit_key = raw, job.key
+        if lighting is not None:
+            st.env, st.spec, st.irr = self._lighting_textures(lighting, st)
+            st.lighting, st.raw_probe = lighting, raw
+            st.amb_full, st.amb_bounce = lighting.ambient.numpy(), lighting.ambient_bounce.numpy()
+        self._move(st, st.obj, st.key, st.centre, st.radius, st.halo)
+
+    def lighting_pending(self) -> bool:
+        """Whether a background lighting job is running or waits to be swapped in, or an object's
+        lighting lags its position (frames should go on)."""
+        return bool(self._relights) or any(st.lit_key != st.key for st in self._objects.values())
+
+    def wait_lighting(self) -> None:
+        """Wait for the background lighting jobs (the next :meth:`object_state` swaps them in)."""
+        for job in list(self._relights.values()):
+            job.future.result()
 
     def _lighting_textures(self, lighting: ObjectLighting, old: ObjectGPU | None) -> tuple:
         """(env, spec, irr) textures of ``lighting``: ``old``'s rewritten when their sizes match (a

@@ -31,12 +31,17 @@ class Quality:
     # the viewer's composite (objects and shadows) at this share of the view's resolution per axis,
     # over the layer at full resolution (composite_up.frag); exports always run at 1
     composite_scale: float = 1.0
+    # a moved object's lighting on a worker thread, swapped in when ready (the viewer while dragging:
+    # viewer.insertion.InsertionPass; exports and direct calls compute it before drawing)
+    background_lighting: bool = False
+    relight_interval: float = 0.0  # s from one background job's end to the next one's start
 
 
 FULL = Quality(supersample=1.5)
 DRAGGING = Quality(spec_samples=4, shadow_size=256, supersample=1.0, march_steps=16, shadow_taps=8,
                    peak_subsamples=False, glossy_receivers=False, halo=3.0, relight_tolerance=0.03,
                    impostor_faces=2048, shadow_faces=1024, proxy_lookups=False, blocker_search=False,
-                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05, composite_scale=0.5)
+                   reuse_lights=True, own_shadow_bounds=True, light_grid=0.05, composite_scale=0.25,
+                   relight_interval=0.15)
 # exports at draft quality (phyir insert --quality draft): the light where the object is, no grid steps
 DRAFT_EXPORT = replace(DRAGGING, light_grid=0.0)

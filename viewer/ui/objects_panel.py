@@ -52,6 +52,10 @@ class ObjectsPanel:
         """Objects are drawn (the view's picture depends on them: no cached frames)."""
         return self.hook.enabled and any(o.visible for o in self.objects) and self.insertion.scene is not None
 
+    def refining(self) -> bool:
+        """An object's lighting is being computed in the background: frames should go on to show it."""
+        return self.insertion.lighting_pending()
+
     def scene(self):
         app = self.app
         return app.gt if app.show_gt and app.gt is not None else app.scene
