@@ -449,6 +449,8 @@ def _outline_points(st: ObjectGPU, n: int = 16) -> np.ndarray:
     """Directions around the cone from the panorama's centre that holds the object's bounding sphere
     (a little wider, as its impostor camera's: ``ImpostorPasses.prepare``)."""
     dist = float(np.linalg.norm(st.centre))
+    if dist <= st.radius:  # the camera inside the object (warned about): it covers every direction
+        return np.concatenate([np.eye(3), -np.eye(3)])
     axis = st.centre / dist
     half = math.asin(min(st.radius / dist, 0.98)) * 1.03 + 1e-3
     a = np.cross(axis, [0.0, 1.0, 0.0] if abs(axis[1]) < 0.9 else [1.0, 0.0, 0.0])
