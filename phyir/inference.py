@@ -542,8 +542,9 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, options: PredictOpti
     ``lighting``: ``"projection"`` (probes re-read from the panorama where the camera saw, LNet
     elsewhere) or ``"lnet"`` (LNet only); default :data:`DEFAULT_LIGHTING`.
     ``net_size``: network resolution (H, W) (default: the weights' training resolution, at most the
-    input's).  ``refine_depth``: make the predicted depth follow the predicted normals where those are
-    plausible (default True; False gives GMNet's raw depth).  ``progress(stage, fraction)`` is called
+    input's).  ``refine_depth``: pull near-level and near-plumb normals onto gravity's directions and
+    make the predicted depth follow them — the network's normals where plausible, else the depth's own
+    (default True; False gives GMNet's raw depth and normals).  ``progress(stage, fraction)`` is called
     between stages; ``cancel`` (a callable or an Event) is checked between stages and raises
     :class:`Cancelled`.
     """
