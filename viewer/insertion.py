@@ -323,37 +323,54 @@ class InsertionPass:
         self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
+        self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
 
-    def __call__(self, renderer, frame) -> None:
+    def overwrites(self, renderer, frame) -> tuple[int, int, int, int] | None:
+        """Called by the renderer before the display pass: prepares the objects and returns the view
+        region (x, y, w, h) a draft frame will draw whole, which the display pass then skips (it
+        would be overwritten); None for full-quality frames (drawn over the display pass as before)."""
+        plan = self._prepare(frame)
+        self._plan = (frame, plan)
+        if plan is None or plan[2].composite_scale >= 1:
+            return None
+        return plan[1]
+
+    def _prepare(self, frame) -> tuple[list, tuple[int, int, int, int], Quality] | None:
+        """The objects drawn into the atlases, the view region they change and the frame's quality;
+        None when nothing is drawn.  Leaves other framebuffers bound."""
         ins = self.insertion
-        self.last_rect = None
         ins.forget(self.objects)  # deleted objects' lighting, unused meshes
         if not self.enabled or not frame.extras.get("insert", True) or ins.scene is None:
-            return
+            return None
         if not any(o.visible for o in self.objects):
-            return
-        ctx = ins.ctx
-        target = ctx.fbo
-        vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
-        x, y, w, h = frame.rect
-        fb_h = vy + y + h
+            return None
+        _, _, w, h = frame.rect
         quality = replace(DRAGGING, background_lighting=self.background_lighting) if self.dragging else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
+        rect = ins.screen_rect(drawn, frame.view, (w, h)) if drawn else None
+        return None if rect is None else (drawn, rect, quality)
+
+    def __call__(self, renderer, frame) -> None:
+        ctx = self.insertion.ctx
+        self.last_rect = None
+        target = ctx.fbo
+        vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
+        planned, self._plan = self._plan, None
+        plan = planned[1] if planned is not None and planned[0] is frame else self._prepare(frame)
         target.use()
         ctx.viewport = (vx, vy, vw, vh)
-        if not drawn:
+        if plan is None:
             return
-        rect = ins.screen_rect(drawn, frame.view, (w, h))
-        if rect is None:
-            return
+        drawn, rect, quality = plan
+        x, y, w, h = frame.rect
+        fb_h = vy + y + h
         if quality.composite_scale < 1:
             self._draft(renderer, frame, drawn, rect, fb_h, quality)
         else:
             self._full(renderer, frame, drawn, rect, fb_h, quality)
         ctx.viewport = (vx, vy, vw, vh)
         self.last_rect = rect
-
 
     def _frame_program(self, prog, renderer, frame, rect, fb_h: float) -> None:
         """The view, layer and display uniforms ``prog`` shares with the display pass."""

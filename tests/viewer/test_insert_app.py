@@ -175,3 +175,34 @@ def test_dragging_draws_receivers_coarse_under_sharp_objects_over_the_sharp_laye
     # steps there too (objects drawn at 1/4 resolution: median difference 20 in the equirect view)
     edge = (_steps(still) > 10) & (_steps(bare) < 3)
     assert edge.sum() > 20 and np.median(diff[edge]) < 8
+
+
+@pytest.mark.parametrize("view", ["equirect", "perspective"])
+def test_a_draft_frame_skips_the_display_pass_where_the_objects_redraw_the_view(app, view):
+    """While dragging, the draft composite draws its region whole, so the renderer's display pass
+    skips it (``InsertionPass.overwrites``): the picture is the same pixel for pixel as with the
+    display pass drawn everywhere; still frames draw it everywhere."""
+    from phyir.insert.objects import PRESETS
+
+    panel = app.objects
+    app.set_view(view)
+    if view == "perspective":
+        app.views["perspective"].update(yaw=0.0, pitch=-0.4)
+    panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
+    w, h = app.view_size()
+    try:
+        view_pixels(app)
+        assert app.renderer.display_pixels == w * h  # a still frame: everywhere
+        panel.hook.dragging = True
+        skipped = view_pixels(app)
+        rw, rh = panel.hook.last_rect[2:]
+        assert 0 < rw * rh and app.renderer.display_pixels == w * h - rw * rh
+        panel.hook.overwrites = lambda renderer, frame: None  # the display pass everywhere
+        everywhere = view_pixels(app)
+        assert app.renderer.display_pixels == w * h
+    finally:
+        del panel.hook.overwrites
+        panel.hook.dragging = False
+        panel.delete(len(panel.objects) - 1)
+        app.set_view("equirect")
+    assert np.abs(skipped - everywhere).max() == 0
