@@ -49,7 +49,7 @@ from viewer.gl.impostors import FUSIONS, ImpostorPasses, set_lighting
 from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 from viewer.gl.quality import DRAGGING, FULL, Quality
-from viewer.renderer import KINDS, TONEMAPS
+from viewer.renderer import KINDS, TONEMAPS, strips_around
 
 __all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionPass", "InsertionRenderer", "Quality"]
 
@@ -438,14 +438,21 @@ class InsertionPass:
         set_uniform(up, "draft_keep", 14)
         set_uniform(up, "draft_rect", tuple(float(r) for r in region))
         set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
-        # the objects' look-ups only where they can be (they cost as much as the rest of the pass)
-        set_uniform(up, "n_objects", 0)
-        ins.draw_fullscreen(up)
+        # the objects' look-ups only where they can be (they cost as much as the rest of the pass),
+        # each pixel drawn once: the region around their outline without them, the outline with them
         outline = ins.screen_rect(drawn, frame.view, (w, h), reach=False)
+        hole = None
         if outline is not None:
             ox0, oy0 = max(outline[0], rx), max(outline[1], ry)
             ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
-            ctx.viewport = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0)
+            hole = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0) if ox1 > ox0 and oy1 > oy0 else None
+        set_uniform(up, "n_objects", 0)
+        for strip in strips_around(region, hole) if hole is not None else [region]:
+            ctx.scissor = strip
+            ins.draw_fullscreen(up)
+        ctx.scissor = None
+        if hole is not None:
+            ctx.viewport = hole
             set_uniform(up, "n_objects", len(drawn))
             ins.draw_fullscreen(up)
 

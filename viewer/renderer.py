@@ -321,11 +321,7 @@ class Renderer:
             strips = [viewport]
         else:
             hx, hy, hw, hh = hole
-            hy = y + h - hy - hh  # from the bottom
-            hx += x
-            strips = [(x, y, w, hy - y), (x, hy + hh, w, y + h - hy - hh),
-                      (x, hy, hx - x, hh), (hx + hw, hy, x + w - hx - hw, hh)]
-            strips = [s for s in strips if s[2] > 0 and s[3] > 0]
+            strips = strips_around(viewport, (x + hx, y + h - hy - hh, hw, hh))  # hole from the bottom
         self.display_pixels = sum(s[2] * s[3] for s in strips)
         if hole is None:
             vao.render(moderngl.TRIANGLES, vertices=3)
@@ -394,6 +390,16 @@ class Renderer:
 
 
 POT_CLASSES = ((4, 2), (3, 2), (4, 3), (3, 3))  # (w, h) sizes: each side a power of two or not
+
+
+def strips_around(rect: tuple[int, int, int, int], hole: tuple[int, int, int, int]
+                  ) -> list[tuple[int, int, int, int]]:
+    """Up to four (x, y, w, h) rectangles covering ``rect`` except ``hole`` (inside it; same axes)."""
+    x, y, w, h = rect
+    hx, hy, hw, hh = hole
+    strips = [(x, y, w, hy - y), (x, hy + hh, w, y + h - hy - hh),
+              (x, hy, hx - x, hh), (hx + hw, hy, x + w - hx - hw, hh)]
+    return [s for s in strips if s[2] > 0 and s[3] > 0]
 
 
 def _pot(n: int) -> bool:

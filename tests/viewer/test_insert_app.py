@@ -206,3 +206,19 @@ def test_a_draft_frame_skips_the_display_pass_where_the_objects_redraw_the_view(
         panel.delete(len(panel.objects) - 1)
         app.set_view("equirect")
     assert np.abs(skipped - everywhere).max() == 0
+
+
+def test_strips_around_a_hole_cover_the_rest_once():
+    """renderer.strips_around (the display pass around the draft's region, the draft's pass around
+    the objects' outline): every pixel of the rectangle outside the hole exactly once."""
+    from viewer.renderer import strips_around
+
+    for hole in [(13, 9, 20, 7), (10, 5, 60, 40), (10, 20, 5, 25), (40, 5, 30, 3)]:
+        cover = np.zeros((50, 80), int)
+        for x, y, w, h in strips_around((10, 5, 60, 40), hole):
+            cover[y:y + h, x:x + w] += 1
+        want = np.zeros((50, 80), int)
+        want[5:45, 10:70] = 1
+        hx, hy, hw, hh = hole
+        want[hy:hy + hh, hx:hx + hw] = 0
+        assert np.array_equal(cover, want)
