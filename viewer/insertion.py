@@ -321,6 +321,7 @@ class InsertionPass:
         self.enabled = True
         self.dragging = False
         self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
+        self.impostor_every = 2  # while dragging: a moved object's impostor drawn every other frame
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
         self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
@@ -345,7 +346,8 @@ class InsertionPass:
         if not any(o.visible for o in self.objects):
             return None
         _, _, w, h = frame.rect
-        quality = replace(DRAGGING, background_lighting=self.background_lighting) if self.dragging else FULL
+        quality = replace(DRAGGING, background_lighting=self.background_lighting,
+                          impostor_every=self.impostor_every) if self.dragging else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
         rect = ins.screen_rect(drawn, frame.view, (w, h)) if drawn else None
