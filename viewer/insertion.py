@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import replace
+from dataclasses import astuple, replace
 
 import moderngl
 import numpy as np
@@ -322,6 +322,10 @@ class InsertionPass:
         self.dragging = False
         self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
         self.impostor_every = 2  # while dragging: a moved object's impostor drawn every other frame
+        self.receivers_every = 2  # and the draft's receivers on the frames it is not (_receivers_due)
+        self.receivers_drawn = 0  # draft receiver passes drawn so far
+        self._receivers_key: tuple | None = None
+        self._receivers_kept = False
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
         self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
@@ -410,6 +414,18 @@ class InsertionPass:
                            **_composite_defines(quality))
         return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
 
+    def _receivers_due(self, key: tuple) -> bool:
+        """Whether this draft frame draws the receivers again: with ``receivers_every`` = 2, a frame
+        that drew an impostor keeps the last frame's receivers when they were drawn for the same
+        region and view (the costs alternate: one frame the impostor, the next the receivers; the
+        shadows lag the object by at most a frame)."""
+        keep = self.receivers_every > 1 and self.insertion.drawn_faces["impostor"] > 0 \
+            and self._receivers_key == key and not self._receivers_kept
+        self._receivers_kept = keep
+        self._receivers_key = key
+        self.receivers_drawn += not keep
+        return not keep
+
     def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
         """The receivers (the objects' shadows) at ``quality.composite_scale`` of the region's
         resolution, then put over the layer with the objects at full resolution (the panorama and
@@ -429,8 +445,10 @@ class InsertionPass:
         view = frame.view if isinstance(frame.view, PerspectiveView) else \
             EquirectView(center=frame.view.center, zoom=frame.view.zoom * s)
         self._frame_program(prog, renderer, replace(frame, view=view), (-rx * s, -ry * s, w * s, h * s), ch)
-        ins.composite_uniforms(prog, drawn)
-        ins.draw_fullscreen(prog)
+        key = (cw, ch, rect, astuple(view), id(frame.texture))
+        if self._receivers_due(key):
+            ins.composite_uniforms(prog, drawn)
+            ins.draw_fullscreen(prog)
         target.use()
         region = (x + rx, fb_h - y - ry - rh, rw, rh)
         ctx.viewport = region

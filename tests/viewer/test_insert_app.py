@@ -222,3 +222,39 @@ def test_strips_around_a_hole_cover_the_rest_once():
         hx, hy, hw, hh = hole
         want[hy:hy + hh, hx:hx + hw] = 0
         assert np.array_equal(cover, want)
+
+
+def test_a_dragging_frame_that_draws_an_impostor_keeps_the_last_receivers(app):
+    """While dragging, the moved object's impostor is drawn every other frame and the draft's
+    receivers on the frames in between (InsertionPass.receivers_every): each frame pays for one of
+    the two, and the shadows are never more than a frame old."""
+    from phyir.insert.objects import PRESETS
+
+    panel, hook = app.objects, app.objects.hook
+    app.set_view("perspective")
+    H, W = app.size
+    d = pano.uv_to_dir(torch.tensor(40.5), torch.tensor(50.5), H, W)
+    lon, lat = pano.dir_to_lonlat(d)
+    fov = app.views["perspective"].fov
+    # narrow: the objects' reach covers the view, so the draft's region stays the same
+    app.views["perspective"].update(fov=25.0, yaw=float(lon), pitch=float(lat))
+    obj = panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
+    cx, cy = screen_of(app, obj.bounding_sphere()[0])
+    drawn, impostors, rects = [], [], []
+    try:
+        assert panel.begin_drag(cx, cy)
+        for k in range(1, 11):
+            panel.drag_to(cx + 2 * k, cy)
+            before = hook.receivers_drawn
+            app.frame()
+            drawn.append(hook.receivers_drawn - before)
+            impostors.append(panel.insertion.drawn_faces["impostor"] > 0)
+            rects.append(hook.last_rect)
+        panel.end_drag()
+    finally:
+        panel.delete(len(panel.objects) - 1)
+        app.views["perspective"].update(fov=fov)
+        app.set_view("equirect")
+    assert len(set(rects)) == 1
+    assert drawn.count(0) >= 3 and "00" not in "".join(map(str, drawn))
+    assert all(imp for imp, n in zip(impostors, drawn) if n == 0)  # kept only when the impostor was drawn
