@@ -15,7 +15,7 @@ out vec4 out_colour;
 void main() {
     bool inside;
     vec2 uv = view_uv(pano_size, inside);
-    vec4 bg = layer_value();
+    vec4 bg = layer_lookup_at(layer, uv, inside);  // view_uv once
     vec2 st = (gl_FragCoord.xy - draft_rect.xy) / draft_rect.zw * draft_uv_scale;
     vec4 obj = objects_seen(uv_to_dir(uv, pano_size));  // outside the panorama bg.a = 0 hides it
     vec3 keep = texture(draft_keep, st).rgb;

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import replace
+from dataclasses import astuple, replace
 
 import moderngl
 import numpy as np
@@ -49,7 +49,7 @@ from viewer.gl.impostors import FUSIONS, ImpostorPasses, set_lighting
 from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 from viewer.gl.quality import DRAGGING, FULL, Quality
-from viewer.renderer import KINDS, TONEMAPS
+from viewer.renderer import KINDS, TONEMAPS, strips_around
 
 __all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionPass", "InsertionRenderer", "Quality"]
 
@@ -321,39 +321,62 @@ class InsertionPass:
         self.enabled = True
         self.dragging = False
         self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
+        self.impostor_every = 2  # while dragging: a moved object's impostor drawn every other frame
+        self.receivers_every = 2  # and the draft's receivers on the frames it is not (_receivers_due)
+        self.receivers_drawn = 0  # draft receiver passes drawn so far
+        self._receivers_key: tuple | None = None
+        self._receivers_kept = False
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
+        self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
 
-    def __call__(self, renderer, frame) -> None:
+    def overwrites(self, renderer, frame) -> tuple[int, int, int, int] | None:
+        """Called by the renderer before the display pass: prepares the objects and returns the view
+        region (x, y, w, h) a draft frame will draw whole, which the display pass then skips (it
+        would be overwritten); None for full-quality frames (drawn over the display pass as before)."""
+        plan = self._prepare(frame)
+        self._plan = (frame, plan)
+        if plan is None or plan[2].composite_scale >= 1:
+            return None
+        return plan[1]
+
+    def _prepare(self, frame) -> tuple[list, tuple[int, int, int, int], Quality] | None:
+        """The objects drawn into the atlases, the view region they change and the frame's quality;
+        None when nothing is drawn.  Leaves other framebuffers bound."""
         ins = self.insertion
-        self.last_rect = None
         ins.forget(self.objects)  # deleted objects' lighting, unused meshes
         if not self.enabled or not frame.extras.get("insert", True) or ins.scene is None:
-            return
+            return None
         if not any(o.visible for o in self.objects):
-            return
-        ctx = ins.ctx
-        target = ctx.fbo
-        vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
-        x, y, w, h = frame.rect
-        fb_h = vy + y + h
-        quality = replace(DRAGGING, background_lighting=self.background_lighting) if self.dragging else FULL
+            return None
+        _, _, w, h = frame.rect
+        quality = replace(DRAGGING, background_lighting=self.background_lighting,
+                          impostor_every=self.impostor_every) if self.dragging else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
+        rect = ins.screen_rect(drawn, frame.view, (w, h)) if drawn else None
+        return None if rect is None else (drawn, rect, quality)
+
+    def __call__(self, renderer, frame) -> None:
+        ctx = self.insertion.ctx
+        self.last_rect = None
+        target = ctx.fbo
+        vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
+        planned, self._plan = self._plan, None
+        plan = planned[1] if planned is not None and planned[0] is frame else self._prepare(frame)
         target.use()
         ctx.viewport = (vx, vy, vw, vh)
-        if not drawn:
+        if plan is None:
             return
-        rect = ins.screen_rect(drawn, frame.view, (w, h))
-        if rect is None:
-            return
+        drawn, rect, quality = plan
+        x, y, w, h = frame.rect
+        fb_h = vy + y + h
         if quality.composite_scale < 1:
             self._draft(renderer, frame, drawn, rect, fb_h, quality)
         else:
             self._full(renderer, frame, drawn, rect, fb_h, quality)
         ctx.viewport = (vx, vy, vw, vh)
         self.last_rect = rect
-
 
     def _frame_program(self, prog, renderer, frame, rect, fb_h: float) -> None:
         """The view, layer and display uniforms ``prog`` shares with the display pass."""
@@ -391,6 +414,18 @@ class InsertionPass:
                            **_composite_defines(quality))
         return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
 
+    def _receivers_due(self, key: tuple) -> bool:
+        """Whether this draft frame draws the receivers again: with ``receivers_every`` = 2, a frame
+        that drew an impostor keeps the last frame's receivers when they were drawn for the same
+        region and view (the costs alternate: one frame the impostor, the next the receivers; the
+        shadows lag the object by at most a frame)."""
+        keep = self.receivers_every > 1 and self.insertion.drawn_faces["impostor"] > 0 \
+            and self._receivers_key == key and not self._receivers_kept
+        self._receivers_kept = keep
+        self._receivers_key = key
+        self.receivers_drawn += not keep
+        return not keep
+
     def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
         """The receivers (the objects' shadows) at ``quality.composite_scale`` of the region's
         resolution, then put over the layer with the objects at full resolution (the panorama and
@@ -410,8 +445,10 @@ class InsertionPass:
         view = frame.view if isinstance(frame.view, PerspectiveView) else \
             EquirectView(center=frame.view.center, zoom=frame.view.zoom * s)
         self._frame_program(prog, renderer, replace(frame, view=view), (-rx * s, -ry * s, w * s, h * s), ch)
-        ins.composite_uniforms(prog, drawn)
-        ins.draw_fullscreen(prog)
+        key = (cw, ch, rect, astuple(view), id(frame.texture))
+        if self._receivers_due(key):
+            ins.composite_uniforms(prog, drawn)
+            ins.draw_fullscreen(prog)
         target.use()
         region = (x + rx, fb_h - y - ry - rh, rw, rh)
         ctx.viewport = region
@@ -421,14 +458,21 @@ class InsertionPass:
         set_uniform(up, "draft_keep", 14)
         set_uniform(up, "draft_rect", tuple(float(r) for r in region))
         set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
-        # the objects' look-ups only where they can be (they cost as much as the rest of the pass)
-        set_uniform(up, "n_objects", 0)
-        ins.draw_fullscreen(up)
+        # the objects' look-ups only where they can be (they cost as much as the rest of the pass),
+        # each pixel drawn once: the region around their outline without them, the outline with them
         outline = ins.screen_rect(drawn, frame.view, (w, h), reach=False)
+        hole = None
         if outline is not None:
             ox0, oy0 = max(outline[0], rx), max(outline[1], ry)
             ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
-            ctx.viewport = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0)
+            hole = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0) if ox1 > ox0 and oy1 > oy0 else None
+        set_uniform(up, "n_objects", 0)
+        for strip in strips_around(region, hole) if hole is not None else [region]:
+            ctx.scissor = strip
+            ins.draw_fullscreen(up)
+        ctx.scissor = None
+        if hole is not None:
+            ctx.viewport = hole
             set_uniform(up, "n_objects", len(drawn))
             ins.draw_fullscreen(up)
 

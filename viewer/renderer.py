@@ -100,6 +100,7 @@ class Renderer:
         self._cache: moderngl.Framebuffer | None = None  # the last view drawn with a cache key
         self._cache_key: tuple | None = None
         self.cache_misses = 0
+        self.display_pixels = 0  # the display pass's, last frame (overlay passes may overwrite some)
         self._luts: dict[str, moderngl.Texture] = {}
         self._hdr: moderngl.Framebuffer | None = None
         self.linear_passes: list[Pass] = []
@@ -262,6 +263,7 @@ class Renderer:
         x, y, w, h = rect
         ctx = self.ctx
         frame.rect = (x, y, w, h)
+        hole = self._overwritten(frame)  # first: the passes' preparations bind their own framebuffers
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         view_defs = {"VIEW_KIND": int(isinstance(frame.view, PerspectiveView)), "NEAREST": int(frame.nearest)}
         d = frame.display
@@ -295,9 +297,39 @@ class Renderer:
         self.set_display(prog, frame)
         if frame.compare is not None:
             self._set_compare(prog, frame.compare, w)
-        vao.render(moderngl.TRIANGLES, vertices=3)
+        self._render_around(vao, (x, fb_h - y - h, w, h), hole)
         for p in self.overlay_passes:
             p(self, frame)
+
+    def _overwritten(self, frame: Frame) -> tuple[int, int, int, int] | None:
+        """The view region (x, y, w, h from the view's top left) an overlay pass will draw whole this
+        frame (its optional ``overwrites(renderer, frame)``), or None."""
+        for p in self.overlay_passes:
+            hook = getattr(p, "overwrites", None)
+            hole = hook(self, frame) if hook is not None else None
+            if hole is not None:
+                return hole
+        return None
+
+    def _render_around(self, vao: moderngl.VertexArray, viewport: tuple[int, int, int, int],
+                       hole: tuple[int, int, int, int] | None) -> None:
+        """The display pass over ``viewport`` (framebuffer pixels) except the view region ``hole``
+        (an overlay pass overwrites it): scissored strips, so each pixel drawn is the same as
+        without a hole.  ``display_pixels``: how many it drew."""
+        x, y, w, h = viewport
+        if hole is None:
+            strips = [viewport]
+        else:
+            hx, hy, hw, hh = hole
+            strips = strips_around(viewport, (x + hx, y + h - hy - hh, hw, hh))  # hole from the bottom
+        self.display_pixels = sum(s[2] * s[3] for s in strips)
+        if hole is None:
+            vao.render(moderngl.TRIANGLES, vertices=3)
+            return
+        for s in strips:
+            self.ctx.scissor = s
+            vao.render(moderngl.TRIANGLES, vertices=3)
+        self.ctx.scissor = None
 
     def _set_layer(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
         set_view(prog, frame.view, rect, fb_height)
@@ -358,6 +390,16 @@ class Renderer:
 
 
 POT_CLASSES = ((4, 2), (3, 2), (4, 3), (3, 3))  # (w, h) sizes: each side a power of two or not
+
+
+def strips_around(rect: tuple[int, int, int, int], hole: tuple[int, int, int, int]
+                  ) -> list[tuple[int, int, int, int]]:
+    """Up to four (x, y, w, h) rectangles covering ``rect`` except ``hole`` (inside it; same axes)."""
+    x, y, w, h = rect
+    hx, hy, hw, hh = hole
+    strips = [(x, y, w, hy - y), (x, hy + hh, w, y + h - hy - hh),
+              (x, hy, hx - x, hh), (hx + hw, hy, x + w - hx - hw, hh)]
+    return [s for s in strips if s[2] > 0 and s[3] > 0]
 
 
 def _pot(n: int) -> bool:

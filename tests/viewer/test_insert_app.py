@@ -175,3 +175,86 @@ def test_dragging_draws_receivers_coarse_under_sharp_objects_over_the_sharp_laye
     # steps there too (objects drawn at 1/4 resolution: median difference 20 in the equirect view)
     edge = (_steps(still) > 10) & (_steps(bare) < 3)
     assert edge.sum() > 20 and np.median(diff[edge]) < 8
+
+
+@pytest.mark.parametrize("view", ["equirect", "perspective"])
+def test_a_draft_frame_skips_the_display_pass_where_the_objects_redraw_the_view(app, view):
+    """While dragging, the draft composite draws its region whole, so the renderer's display pass
+    skips it (``InsertionPass.overwrites``): the picture is the same pixel for pixel as with the
+    display pass drawn everywhere; still frames draw it everywhere."""
+    from phyir.insert.objects import PRESETS
+
+    panel = app.objects
+    app.set_view(view)
+    if view == "perspective":
+        app.views["perspective"].update(yaw=0.0, pitch=-0.4)
+    panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
+    w, h = app.view_size()
+    try:
+        view_pixels(app)
+        assert app.renderer.display_pixels == w * h  # a still frame: everywhere
+        panel.hook.dragging = True
+        skipped = view_pixels(app)
+        rw, rh = panel.hook.last_rect[2:]
+        assert 0 < rw * rh and app.renderer.display_pixels == w * h - rw * rh
+        panel.hook.overwrites = lambda renderer, frame: None  # the display pass everywhere
+        everywhere = view_pixels(app)
+        assert app.renderer.display_pixels == w * h
+    finally:
+        del panel.hook.overwrites
+        panel.hook.dragging = False
+        panel.delete(len(panel.objects) - 1)
+        app.set_view("equirect")
+    assert np.abs(skipped - everywhere).max() == 0
+
+
+def test_strips_around_a_hole_cover_the_rest_once():
+    """renderer.strips_around (the display pass around the draft's region, the draft's pass around
+    the objects' outline): every pixel of the rectangle outside the hole exactly once."""
+    from viewer.renderer import strips_around
+
+    for hole in [(13, 9, 20, 7), (10, 5, 60, 40), (10, 20, 5, 25), (40, 5, 30, 3)]:
+        cover = np.zeros((50, 80), int)
+        for x, y, w, h in strips_around((10, 5, 60, 40), hole):
+            cover[y:y + h, x:x + w] += 1
+        want = np.zeros((50, 80), int)
+        want[5:45, 10:70] = 1
+        hx, hy, hw, hh = hole
+        want[hy:hy + hh, hx:hx + hw] = 0
+        assert np.array_equal(cover, want)
+
+
+def test_a_dragging_frame_that_draws_an_impostor_keeps_the_last_receivers(app):
+    """While dragging, the moved object's impostor is drawn every other frame and the draft's
+    receivers on the frames in between (InsertionPass.receivers_every): each frame pays for one of
+    the two, and the shadows are never more than a frame old."""
+    from phyir.insert.objects import PRESETS
+
+    panel, hook = app.objects, app.objects.hook
+    app.set_view("perspective")
+    H, W = app.size
+    d = pano.uv_to_dir(torch.tensor(40.5), torch.tensor(50.5), H, W)
+    lon, lat = pano.dir_to_lonlat(d)
+    fov = app.views["perspective"].fov
+    # narrow: the objects' reach covers the view, so the draft's region stays the same
+    app.views["perspective"].update(fov=25.0, yaw=float(lon), pitch=float(lat))
+    obj = panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
+    cx, cy = screen_of(app, obj.bounding_sphere()[0])
+    drawn, impostors, rects = [], [], []
+    try:
+        assert panel.begin_drag(cx, cy)
+        for k in range(1, 11):
+            panel.drag_to(cx + 2 * k, cy)
+            before = hook.receivers_drawn
+            app.frame()
+            drawn.append(hook.receivers_drawn - before)
+            impostors.append(panel.insertion.drawn_faces["impostor"] > 0)
+            rects.append(hook.last_rect)
+        panel.end_drag()
+    finally:
+        panel.delete(len(panel.objects) - 1)
+        app.views["perspective"].update(fov=fov)
+        app.set_view("equirect")
+    assert len(set(rects)) == 1
+    assert drawn.count(0) >= 3 and "00" not in "".join(map(str, drawn))
+    assert all(imp for imp, n in zip(impostors, drawn) if n == 0)  # kept only when the impostor was drawn

@@ -82,6 +82,7 @@ class ImpostorPasses:
         if not work:
             return out
         # impostors, one tile each in a row
+        work = self._keep_layout(work)
         W = sum(n for *_, n in work)
         fbo = self._atlas("impostors", (W, max(n for *_, n in work)), 4, True)
         fbo.use()
@@ -100,6 +101,11 @@ class ImpostorPasses:
             key = (st.key, id(st.lighting), astuple(st.obj.material), quality, fusion, half, id(fbo),
                    self.use_projection, self.footprint_scale)
             if self._tile_keys.get(("impostor", rect)) == key:
+                continue
+            same = (st.obj, st.lighting, key[2:5] + key[6:])  # all but the position and apparent size
+            turned = self._turned_tile(("impostor-last", rect), same, vp, st.centre)
+            if turned is not None:
+                out[-1] = (st, Tile(turned, rect))
                 continue
             self._tile_keys[("impostor", rect)] = key
             fbo.viewport = rect
@@ -123,6 +129,35 @@ class ImpostorPasses:
         self._draw_shadows([st for st, _ in out], quality)
         ctx.disable(moderngl.DEPTH_TEST)
         return out
+
+    def _turned_tile(self, slot: tuple, same: tuple, vp: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
+        """With ``quality.impostor_every`` > 1: the camera of the object's last impostor turned to show
+        it at ``centre`` (None: draw it; recorded as the last).  ``same``: what must not have
+        changed (the object and its lighting held, so their ids can't be reused)."""
+        last = self._tile_keys.get(slot)
+        every = self._quality.impostor_every
+        if every > 1 and last is not None and all(a is b for a, b in zip(last[0][:2], same[:2])) \
+                and last[0][2] == same[2] and last[3] + 1 < every:
+            self._tile_keys[slot] = (last[0], last[1], last[2], last[3] + 1)
+            return turned_camera(last[1], last[2], centre)
+        self._tile_keys[slot] = (same, vp, np.array(centre, float), 0)
+        return None
+
+    def _keep_layout(self, work: list[tuple]) -> list[tuple]:
+        """With ``quality.impostor_every`` > 1 the atlas keeps last time's tiles while it holds the same
+        objects in the same order at sizes within 5%: moves change the sizes by a texel or two, and
+        a turned impostor needs its tile where it was.  Otherwise the last impostors' cameras are
+        forgotten (another layout may have drawn over them)."""
+        last = self._tile_keys.get(("impostor-layout",))
+        same = self._quality.impostor_every > 1 and last is not None and len(last) == len(work) and all(
+            a[0] is w[1].obj and abs(a[1] - w[3]) <= 0.05 * a[1] for a, w in zip(last, work))
+        if same:
+            work = [(*w[:3], a[1]) for a, w in zip(last, work)]
+        else:
+            for k in [k for k in self._tile_keys if k[0] == "impostor-last"]:
+                del self._tile_keys[k]
+        self._tile_keys[("impostor-layout",)] = [(w[1].obj, w[3]) for w in work]
+        return work
 
     def forget_tiles(self) -> None:
         """Draw every impostor and shadow-map tile again at the next :meth:`prepare`."""
@@ -300,3 +335,17 @@ def reflectance(material: ObjectMaterial) -> np.ndarray:
     spec = prefilter.specular_albedo(torch.tensor(1.0), torch.tensor(float(material.roughness)),
                                      f0_from_material(b, m))
     return (b * (1 - m) + spec).numpy()
+
+
+def turned_camera(vp: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """``vp`` (an impostor camera at the origin aimed at ``old``) for an object moved to ``new``: the
+    rotation about the origin taking ``new``'s direction to ``old``'s and the change of apparent size
+    (clip x, y scaled by the distances' ratio).  A draft's stand-in for drawing the impostor again;
+    exact for rotations about the camera, close for moves of a few pixels."""
+    dn, do = float(np.linalg.norm(new)), float(np.linalg.norm(old))
+    a, b = old / do, new / dn
+    v, c = np.cross(b, a), float(np.dot(b, a))
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    turn = np.eye(4)
+    turn[:3, :3] = np.eye(3) + k + k @ k / max(1.0 + c, 1e-9)  # Rodrigues: b -> a
+    return np.diag([dn / do, dn / do, 1.0, 1.0]) @ vp @ turn

@@ -35,6 +35,9 @@ class Quality:
     # viewer.insertion.InsertionPass; exports and direct calls compute it before drawing)
     background_lighting: bool = False
     relight_interval: float = 0.0  # s from one background job's end to the next one's start
+    # a moved object's impostor drawn every this many prepares; in between its last one is turned to
+    # where the object is (the viewer while dragging: InsertionPass.impostor_every)
+    impostor_every: int = 1
 
 
 FULL = Quality(supersample=1.5)
