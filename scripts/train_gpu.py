@@ -144,7 +144,6 @@ def main() -> None:
     (Path(args.results) / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     summary["train"] = train(args, end)
     summary["seconds"] = round(time.time() - t0, 1)
-    Path(args.results).mkdir(parents=True, exist_ok=True)
     (Path(args.results) / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     log(f"done in {summary['seconds']} s")
 

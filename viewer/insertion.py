@@ -49,7 +49,7 @@ from viewer.gl.impostors import FUSIONS, ImpostorPasses, set_lighting
 from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 from viewer.gl.quality import DRAGGING, FULL, Quality
-from viewer.renderer import KINDS, TONEMAPS, strips_around
+from viewer.renderer import KINDS, TONEMAPS, draw_around
 
 __all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionPass", "InsertionRenderer", "Quality"]
 
@@ -467,10 +467,7 @@ class InsertionPass:
             ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
             hole = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0) if ox1 > ox0 and oy1 > oy0 else None
         set_uniform(up, "n_objects", 0)
-        for strip in strips_around(region, hole) if hole is not None else [region]:
-            ctx.scissor = strip
-            ins.draw_fullscreen(up)
-        ctx.scissor = None
+        draw_around(ctx, region, hole, lambda: ins.draw_fullscreen(up))
         if hole is not None:
             ctx.viewport = hole
             set_uniform(up, "n_objects", len(drawn))

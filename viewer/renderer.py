@@ -317,19 +317,11 @@ class Renderer:
         (an overlay pass overwrites it): scissored strips, so each pixel drawn is the same as
         without a hole.  ``display_pixels``: how many it drew."""
         x, y, w, h = viewport
-        if hole is None:
-            strips = [viewport]
-        else:
+        if hole is not None:
             hx, hy, hw, hh = hole
-            strips = strips_around(viewport, (x + hx, y + h - hy - hh, hw, hh))  # hole from the bottom
-        self.display_pixels = sum(s[2] * s[3] for s in strips)
-        if hole is None:
-            vao.render(moderngl.TRIANGLES, vertices=3)
-            return
-        for s in strips:
-            self.ctx.scissor = s
-            vao.render(moderngl.TRIANGLES, vertices=3)
-        self.ctx.scissor = None
+            hole = (x + hx, y + h - hy - hh, hw, hh)  # from the bottom, in framebuffer pixels
+        self.display_pixels = draw_around(self.ctx, viewport, hole,
+                                          lambda: vao.render(moderngl.TRIANGLES, vertices=3))
 
     def _set_layer(self, prog: moderngl.Program, frame: Frame, rect, fb_height: int) -> None:
         set_view(prog, frame.view, rect, fb_height)
@@ -400,6 +392,21 @@ def strips_around(rect: tuple[int, int, int, int], hole: tuple[int, int, int, in
     strips = [(x, y, w, hy - y), (x, hy + hh, w, y + h - hy - hh),
               (x, hy, hx - x, hh), (hx + hw, hy, x + w - hx - hw, hh)]
     return [s for s in strips if s[2] > 0 and s[3] > 0]
+
+
+def draw_around(ctx: moderngl.Context, rect: tuple[int, int, int, int],
+                hole: tuple[int, int, int, int] | None, draw: Callable[[], None]) -> int:
+    """``draw()`` over the framebuffer rectangle ``rect`` except ``hole`` (inside it, None: nowhere),
+    in scissored strips; returns the pixels covered."""
+    if hole is None:
+        draw()
+        return rect[2] * rect[3]
+    strips = strips_around(rect, hole)
+    for s in strips:
+        ctx.scissor = s
+        draw()
+    ctx.scissor = None
+    return sum(s[2] * s[3] for s in strips)
 
 
 def _pot(n: int) -> bool:

@@ -219,13 +219,13 @@ def load_model(path: str | os.PathLike | None = None, device: str | torch.device
     return model.to(device).eval()
 
 
-def model_from_checkpoint(path: str | os.PathLike):
+def model_from_checkpoint(path: str | os.PathLike, _loaded: dict | None = None):
     """The model of a training checkpoint (``<run>/<stage>/checkpoint.pt``) in eval mode: the weights
     of a run stopped by ``--max-minutes``/``--max-steps``, which exports nothing itself."""
     from phyir.learn.checkpoints import load_checkpoint
     from phyir.nets.model import ModelConfig, PhyIRModel
 
-    ck = load_checkpoint(Path(path))
+    ck = _loaded if _loaded is not None else load_checkpoint(Path(path))
     try:
         model = PhyIRModel(ModelConfig.from_dict(ck["model_config"]))
         model.load_state_dict(ck["model"])
@@ -242,8 +242,8 @@ def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = No
     if Path(src).suffix == ".pt":
         from phyir.learn.checkpoints import load_checkpoint
 
-        model = model_from_checkpoint(src)
-        ck = load_checkpoint(Path(src))
+        ck = load_checkpoint(Path(src))  # read once: model, run options and position
+        model = model_from_checkpoint(src, ck)
         info = {"from_checkpoint": {k: ck.get(k) for k in ("epoch", "batch", "step", "seconds")},
                 "config": ck.get("config")}
     else:

@@ -63,7 +63,31 @@ def _finish_without_gil(ctx: moderngl.Context) -> None:
     gl.glFinish()
 
 
-class Headless:
+def _read_canvas(canvas: moderngl.Framebuffer) -> np.ndarray:
+    """An off-screen canvas's pixels, uint8 RGB, rows from the top."""
+    w, h = canvas.size
+    return np.frombuffer(canvas.read(components=3), np.uint8).reshape(h, w, 3)[::-1].copy()
+
+
+class _CanvasOwner:
+    """A surface that may draw into an off-screen canvas (``_canvas``: a framebuffer, one colour
+    attachment) of its own."""
+
+    _canvas: moderngl.Framebuffer | None = None
+    _drawn: moderngl.Framebuffer | None = None  # the framebuffer of the frame being drawn
+
+    def _release_canvas(self) -> None:
+        if self._canvas is not None:
+            self._canvas.color_attachments[0].release()
+            self._canvas.release()
+            self._canvas = None
+
+
+_windows = 0  # open GLFW windows: GLFW is terminated when the last one closes
+_made_current: list = [None]  # the window whose context this module made current last
+
+
+class Headless(_CanvasOwner):
     """A standalone EGL context (no window, no input)."""
 
     window = None
@@ -93,21 +117,15 @@ class Headless:
     def target(self, offscreen: bool = True) -> moderngl.Framebuffer:
         """The framebuffer frames are drawn into (an off-screen canvas of framebuffer_size, always)."""
         size = self.framebuffer_size
-        if getattr(self, "_canvas", None) is None or self._canvas.size != size:
+        if self._canvas is None or self._canvas.size != size:
             self._release_canvas()
             self._canvas = self.ctx.framebuffer([self.ctx.texture(size, 4)])
         return self._canvas
 
-    def _release_canvas(self) -> None:
-        if getattr(self, "_canvas", None) is not None:
-            self._canvas.color_attachments[0].release()
-            self._canvas.release()
-            self._canvas = None
 
     def read(self) -> np.ndarray:
         """The frame just drawn, uint8 RGB, rows from the top."""
-        w, h = self._canvas.size
-        return np.frombuffer(self._canvas.read(components=3), np.uint8).reshape(h, w, 3)[::-1].copy()
+        return _read_canvas(self._canvas)
 
     def present(self) -> None:
         """Wait for the frame (there is nothing to show it on)."""
@@ -127,11 +145,7 @@ class Headless:
         self.ctx.release()
 
 
-_windows = 0  # open GLFW windows: GLFW is terminated when the last one closes
-_made_current: list = [None]  # the window whose context this module made current last
-
-
-class Window:
+class Window(_CanvasOwner):
     """A GLFW window with an OpenGL 3.3 core context."""
 
     def __init__(self, size: tuple[int, int], title: str, visible: bool = True):
@@ -205,7 +219,7 @@ class Window:
         while the window was being resized), the canvas's are ours."""
         if offscreen:
             size = self.framebuffer_size
-            if getattr(self, "_canvas", None) is None or self._canvas.size != size:
+            if self._canvas is None or self._canvas.size != size:
                 self._release_canvas()
                 self._canvas = self.ctx.framebuffer([self.ctx.renderbuffer(size, 4)])
             self._drawn = self._canvas
@@ -215,11 +229,6 @@ class Window:
         self._drawn = self._screen
         return self._screen
 
-    def _release_canvas(self) -> None:
-        if getattr(self, "_canvas", None) is not None:
-            self._canvas.color_attachments[0].release()
-            self._canvas.release()
-            self._canvas = None
 
     def read(self) -> np.ndarray:
         """The frame just drawn (before ``present``), uint8 RGB, rows from the top.  A frame drawn
@@ -227,10 +236,10 @@ class Window:
         from OpenGL import GL as gl
 
         w, h = self.framebuffer_size
-        canvas = getattr(self, "_canvas", None)
-        if canvas is not None and getattr(self, "_drawn", None) is canvas:
+        canvas = self._canvas
+        if canvas is not None and self._drawn is canvas:
             cw, ch = canvas.size
-            img = np.frombuffer(canvas.read(components=3), np.uint8).reshape(ch, cw, 3)[::-1].copy()
+            img = _read_canvas(canvas)
             gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, canvas.glo)
             gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, 0)
             gl.glBlitFramebuffer(0, 0, cw, ch, 0, 0, cw, ch, gl.GL_COLOR_BUFFER_BIT, gl.GL_NEAREST)
