@@ -12,7 +12,6 @@ back, a dome) past the tolerances keep their normal and no seam appears where th
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
@@ -52,7 +51,8 @@ def snap_normals(normal: Tensor, level_deg: tuple[float, float] = LEVEL_DEG,
     level[..., 1:2, :, :] = torch.sign(ny)
     horiz = normal.clone()
     horiz[..., 1:2, :, :] = 0
-    horiz = F.normalize(horiz, dim=-3, eps=1e-8)
+    horiz = horiz / torch.sqrt((horiz * horiz).sum(-3, keepdim=True)).clamp_min(1e-8)
     keep = (1 - w_level - w_plumb).clamp_min(0)
     out = w_level * level + w_plumb * horiz + keep * normal
-    return F.normalize(out, dim=-3, eps=1e-8)
+    return out / torch.sqrt((out * out).sum(-3, keepdim=True)).clamp_min(1e-8)
+
