@@ -11,6 +11,8 @@ back, a dome) past the tolerances keep their normal and no seam appears where th
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -56,3 +58,46 @@ def snap_normals(normal: Tensor, level_deg: tuple[float, float] = LEVEL_DEG,
     out = w_level * level + w_plumb * horiz + keep * normal
     return out / torch.sqrt((out * out).sum(-3, keepdim=True)).clamp_min(1e-8)
 
+
+
+# The floor under the camera. A panorama is shot from a tripod, a monopod or a hand above the
+# floor it stands on: straight below the camera is that floor. Within NADIR_CAP_DEG of the nadir
+# (radius 0.13-0.21 m at camera heights 1.2-2 m: inside a tripod's footprint) nothing else can
+# be, yet it is where a network is least reliable: the equirectangular image smears a few
+# centimetres of floor across whole rows (a patterned rug becomes radial stripes), and its depth
+# there comes out bumpy. Where the ring around the cap is a level floor, the cap continues its
+# plane; elsewhere (a camera above a stair, a table, no floor in view) nothing changes.
+NADIR_CAP_DEG = 6.0  # the cap: latitudes below -(90 - this)
+NADIR_BLEND_DEG = 4.0  # the plane fades out over this many degrees above the cap
+FLOOR_RING_DEG = (6.0, 20.0)  # the ring measured: this far from the nadir (degrees)
+FLOOR_RING_LEVEL = 0.8  # share of the ring's normals within FLOOR_LEVEL_DEG of up
+FLOOR_LEVEL_DEG = 20.0
+FLOOR_RING_PLANARITY = (0.8, 0.05)  # this share of the ring within this |height - plane| / height
+
+
+def floor_under_camera(depth: Tensor, normal: Tensor) -> tuple[Tensor, Tensor, float | None]:
+    """Radial ``depth [...,1,H,W]`` and unit ``normal [...,3,H,W]`` (one panorama) with the cap below
+    the camera on the plane of the level floor around it (see above); also the camera height it
+    used, or None where the ring is not a level floor (then both are returned unchanged)."""
+    H, W = depth.shape[-2:]
+    d = pano.directions(H, W, depth.device, depth.dtype)
+    from_nadir = 90.0 + torch.rad2deg(torch.asin(d[1].clamp(-1, 1)))  # [H,W], 0 straight down
+    ring = (from_nadir >= FLOOR_RING_DEG[0]) & (from_nadir < FLOOR_RING_DEG[1])
+    if not bool(ring.any()):
+        return depth, normal, None
+    heights = -(depth[..., 0, :, :] * d[1])[..., ring]  # the floor's distance below the camera
+    level = normal[..., 1, :, :][..., ring] > math.cos(math.radians(FLOOR_LEVEL_DEG))
+    if float(level.float().mean()) < FLOOR_RING_LEVEL:
+        return depth, normal, None
+    height = heights[level].median()
+    share, tol = FLOOR_RING_PLANARITY
+    if not bool(height > 0) or float(((heights - height).abs() / height).quantile(share)) > tol:
+        return depth, normal, None
+    t = ((NADIR_CAP_DEG + NADIR_BLEND_DEG - from_nadir) / NADIR_BLEND_DEG).clamp(0, 1)
+    w = (t * t * (3 - 2 * t)) * (d[1] < 0)  # 1 in the cap, 0 past the blend
+    plane = height / (-d[1]).clamp_min(1e-6)
+    up = torch.zeros_like(normal)
+    up[..., 1, :, :] = 1
+    out_n = w * up + (1 - w) * normal
+    out_n = out_n / torch.sqrt((out_n * out_n).sum(-3, keepdim=True)).clamp_min(1e-8)
+    return w * plane + (1 - w) * depth, out_n, float(height)

@@ -5,10 +5,19 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from phyir import pano
-from phyir.gravity import LEVEL_DEG, PLUMB_DEG, snap_normals
+from phyir.gravity import (
+    FLOOR_RING_DEG,
+    LEVEL_DEG,
+    NADIR_BLEND_DEG,
+    NADIR_CAP_DEG,
+    PLUMB_DEG,
+    floor_under_camera,
+    snap_normals,
+)
 
 H, W = 16, 32
 
@@ -73,3 +82,47 @@ def test_exact_box_room_normals_are_unchanged():
     assert torch.allclose(snap_normals(normal), normal, atol=1e-12)
     d = pano.directions(32, 64, dtype=torch.float64)
     assert float(((snap_normals(normal) * d).sum(0) > 0).double().mean()) == 0.0  # all face the camera
+
+
+def floor_room(h: float = 1.4, bump: float = 0.0, size: tuple[int, int] = (90, 180)):
+    """A box room's depth and normals (camera ``h`` m above its floor), the floor within 8 degrees of
+    the nadir bumped by ``bump`` (relative depth, varying in longitude, as a network's pole rows)."""
+    from phyir.synth.analytic import box_room
+
+    H, W = size
+    depth, normal = box_room(H, W, (-3.0, -h, -4.0), (3.5, 1.2, 3.0))
+    lon, lat = pano.pixel_lonlat(H, W, dtype=torch.float64)
+    from_nadir = 90 + torch.rad2deg(lat)
+    depth = depth * (1 + bump * torch.sin(7 * lon) * (from_nadir < 8))
+    return depth, normal, from_nadir
+
+
+def test_the_cap_below_the_camera_continues_the_level_floor_around_it():
+    h = 1.4
+    exact, normal, from_nadir = floor_room(h)
+    bumpy, _, _ = floor_room(h, bump=0.07)
+    bent = normal.clone()
+    bent[:, from_nadir < 8] = torch.tensor([0.6, 0.8, 0.0], dtype=torch.float64)[:, None]
+    depth, n, height = floor_under_camera(bumpy[None], bent[None])
+    assert height == pytest.approx(h, rel=1e-9)
+    cap = from_nadir < NADIR_CAP_DEG
+    assert torch.allclose(depth[0][:, cap], exact[:, cap], rtol=1e-9)
+    up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)[:, None]
+    assert torch.allclose(n[0][:, cap], up.expand(3, int(cap.sum())), atol=1e-12)
+    # past the blend nothing moves; within it the depth stays between the two
+    past = from_nadir >= NADIR_CAP_DEG + NADIR_BLEND_DEG
+    assert torch.equal(depth[0][:, past], bumpy[:, past]) and torch.equal(n[0][:, past], bent[:, past])
+    blend = ~cap & ~past
+    lo, hi = torch.minimum(bumpy, exact)[:, blend], torch.maximum(bumpy, exact)[:, blend]
+    assert bool(((depth[0][:, blend] >= lo - 1e-12) & (depth[0][:, blend] <= hi + 1e-12)).all())
+
+
+def test_no_level_floor_around_the_cap_no_change():
+    depth, normal, from_nadir = floor_room()
+    ring = (from_nadir >= FLOOR_RING_DEG[0]) & (from_nadir < FLOOR_RING_DEG[1])
+    slanted = normal.clone()  # a stair or a slope below the camera: the ring's normals 30 degrees off up
+    slanted[:, ring] = torch.tensor([0.5, 0.75 ** 0.5, 0.0], dtype=torch.float64)[:, None]
+    for d, n in ((depth, slanted), (depth * (1 + 0.3 * (from_nadir > 12)), normal)):  # a step: not planar
+        out_d, out_n, height = floor_under_camera(d[None], n[None])
+        assert height is None and out_d is not None
+        assert torch.equal(out_d[0], d) and torch.equal(out_n[0], n)
