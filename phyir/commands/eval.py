@@ -139,6 +139,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         if not args.gt:
             raise PhyIRError("prediction files need --gt DIR (the ground-truth scenes)")
+        if args.points:
+            raise PhyIRError("--points runs the model at free points: give it with --data, not with "
+                             "prediction files")
         from phyir.evaluation.synthetic import evaluate_pair
         from phyir.metrics import MetricMeter
 
@@ -175,8 +178,9 @@ def run_real(args: argparse.Namespace) -> int:
     from phyir.errors import PhyIRError
     from phyir.evaluation.real import evaluate_real, markdown_real, save_contact_sheet
 
-    if args.data or args.predictions or args.gt:
-        raise PhyIRError("--real evaluates a folder of panoramas on its own (no --data, --gt or PRED)")
+    if args.data or args.predictions or args.gt or args.points:
+        raise PhyIRError("--real evaluates a folder of panoramas on its own (no --data, --gt, PRED or "
+                         "--points)")
     options = {k: v for k, v in (("weights", args.weights), ("device", args.device),
                                  ("lighting", args.lighting)) if v is not None}
     results, sheet = evaluate_real(args.real, log=lambda s: print(s, file=sys.stderr, flush=True), **options)

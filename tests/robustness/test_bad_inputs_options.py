@@ -245,6 +245,13 @@ def test_eval_and_bench_numeric_options(capsys, argv, option):
     refused(argv, capsys, option)
 
 
+def test_eval_points_only_with_data(tmp_path, capsys):
+    """--points runs the model at free points; with prediction files or --real it was ignored."""
+    (tmp_path / "gt").mkdir()
+    refused(["eval", str(tmp_path / "p.exr"), "--gt", str(tmp_path / "gt"), "--points", "4"], capsys, "--points")
+    refused(["eval", "--real", str(tmp_path), "--points", "4"], capsys, "--points")
+
+
 @pytest.mark.parametrize("option,value", INSERT_BAD)
 def test_insert_numeric_options_refused_in_one_line(room, tmp_path, capsys, option, value):
     place = [] if option in ("--position", "--at") else ["--at", "40,50"]
