@@ -248,7 +248,8 @@ def test_eval_and_bench_numeric_options(capsys, argv, option):
 def test_eval_points_only_with_data(tmp_path, capsys):
     """--points runs the model at free points; with prediction files or --real it was ignored."""
     (tmp_path / "gt").mkdir()
-    refused(["eval", str(tmp_path / "p.exr"), "--gt", str(tmp_path / "gt"), "--points", "4"], capsys, "--points")
+    argv = ["eval", str(tmp_path / "p.exr"), "--gt", str(tmp_path / "gt"), "--points", "4"]
+    refused(argv, capsys, "--points")
     refused(["eval", "--real", str(tmp_path), "--points", "4"], capsys, "--points")
 
 
