@@ -17,7 +17,7 @@ from pathlib import Path
 
 import phyir.inference as inference
 from phyir import metrics as M
-from phyir import pano
+from phyir import pano, plausible_geometry
 from phyir.depth_normal import refine_depth
 from phyir.evaluation.synthetic import surface_mask
 from phyir.io import load_scene
@@ -56,7 +56,7 @@ def main() -> None:
     files = sorted(Path(a.data).glob("scene_*.exr"))[start:stop]
     preds = raw_predictions(files)
     print(f"{len(preds)} scenes of {a.data} [{a.range}]; predict's setting: anchor "
-          f"{inference.REFINE_ANCHOR}, tau {inference.REFINE_TAU}")
+          f"{plausible_geometry.REFINE_ANCHOR}, tau {plausible_geometry.REFINE_TAU}")
     print("network depth, network normals:", score(preds, lambda d, n: (d, n)))
     print("network depth, its normals:    ", score(preds, lambda d, n: (d, pano.normals_from_depth(d))))
     for anchor, tau in itertools.product((1e-2, 3e-3, 1e-3), (0.01, 0.02, 0.05)):

@@ -34,10 +34,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
-from phyir.depth_normal import refine_depth
 from phyir.errors import InputError, PhyIRError
 from phyir.filters import guided_upsample
-from phyir.gravity import LEVEL_DEG_FROM_DEPTH, floor_under_camera, snap_normals
+from phyir.plausible_geometry import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
 from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
@@ -51,16 +50,6 @@ DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training re
 # every layer comes back at the input's size: ~140 bytes per input pixel at the peak
 # (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
 MAX_PREDICT_SIZE = (4096, 8192)
-# A surface the camera sees faces the camera.  A normal layer with more than this share of its pixels
-# (solid-angle weighted) facing away has collapsed (the whole panorama "up": real rooms unlike the
-# training data) and is replaced by the normals of the predicted depth.
-MAX_AWAY_SHARE = 0.05
-# depth-normal refinement (phyir.depth_normal.refine_depth), chosen on 10 synthetic rooms of seed 7000
-# (benchmarks/depth_normal_refine.py; checked on 20 others): reach ~ 1/sqrt(anchor) = 18 px, steps
-# further than ~0.02 in log depth from the normals' are occlusions
-REFINE_ANCHOR = 3e-3
-REFINE_TAU = 0.02
-FALLBACK_PASSES = 4  # refinement passes when the normals come from the depth (the fallback)
 MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 # the networks' resolution (--net-size, net_size=, a weights sidecar's resolution): H a multiple of
 # 32, W = 2H, at most this.  Peak memory of predict on an input of the net's size (lite model, CPU,
@@ -354,7 +343,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     lnet_grid = None
     with torch.inference_mode(), autocast:
         if plan.run_gm:
-            gm = _plausible_gmnet(model, xn, clock.report)
+            gm, clock.report.gm_pass = plausible_gmnet(model, xn)
             if opts.refine_depth:
                 _consistent_depth(gm, plan, clock.report)
             clock.step("gmnet", 0.35)
@@ -370,57 +359,15 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     return _NetOut(gm, refined, lnet_grid, img.to(dev), xn, s, (Hn, Wn))
 
 
-def _unflip(out: dict[str, Tensor]) -> dict[str, Tensor]:
-    """GMNet's outputs for an upside-down input, back in the upright frame (y -> -y)."""
-    out = {k: v.flip(-2) for k, v in out.items()}
-    if "normal" in out:
-        flip_y = torch.tensor([1.0, -1.0, 1.0], device=out["normal"].device)[:, None, None]
-        out["normal"] = out["normal"] * flip_y
-    return out
-
-
-def _plausible_gmnet(model: Any, xn: Tensor, report: PredictReport) -> dict[str, Tensor]:
-    """GMNet on the input; when its normals are implausible (more than :data:`MAX_AWAY_SHARE` face away
-    from the camera), also on the input mirrored through the horizon (a valid room, floor and ceiling
-    swapped), and the pass whose normals face the camera more is kept — all five layers, since a
-    collapsed normal head means the whole pass is out of its depth."""
-    gm = {k: v.float() for k, v in model.gmnet(xn).items()}
-    report.gm_pass = "upright"
-    if "normal" not in gm:
-        return gm
-    away = away_share(gm["normal"][0])
-    if away <= MAX_AWAY_SHARE:
-        return gm
-    flipped = _unflip({k: v.float() for k, v in model.gmnet(xn.flip(-2)).items()})
-    if away_share(flipped["normal"][0]) < away:
-        report.gm_pass = "mirrored"
-        return flipped
-    return gm
-
-
 def _consistent_depth(gm: dict[str, Tensor], plan: _Plan, report: PredictReport) -> None:
-    """GMNet's depth made to follow gravity-aligned normals (:func:`phyir.gravity.snap_normals`,
-    :func:`phyir.depth_normal.refine_depth`): floors level, walls plumb, planes planar, and the two
-    layers agree. The normals are the network's where plausible; where its normal head failed, the
-    depth's own, snapped with the wider tolerance and re-derived a few times (each pass levels the
-    floor a little more). Then the cap straight below the camera continues the level floor around
-    it (:func:`phyir.gravity.floor_under_camera`). Only where the depth is predicted, not the input's."""
+    """:func:`phyir.plausible_geometry.consistent_depth` on GMNet's layers, only where the depth is
+    predicted, not the input's."""
     if "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
         return
-    # float32 is enough (1.8e-6 from float64 on a real room) at half the time: 0.16 s at 256x512
-    depth = gm["depth"].float()
-    if away_share(gm["normal"][0]) <= MAX_AWAY_SHARE:
-        normal = snap_normals(gm["normal"].float())
-        depth = refine_depth(depth, normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
-        depth, normal, report.floor_height = floor_under_camera(depth, normal)
-        gm["normal"] = normal.to(gm["normal"].dtype)
-    else:  # (the normal layer is then derived from this depth: _plausible_normals)
-        for _ in range(FALLBACK_PASSES):
-            normal = snap_normals(pano.normals_from_depth(depth), level_deg=LEVEL_DEG_FROM_DEPTH)
-            depth = refine_depth(depth, normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
-        normal = snap_normals(pano.normals_from_depth(depth), level_deg=LEVEL_DEG_FROM_DEPTH)
-        depth, _, report.floor_height = floor_under_camera(depth, normal)
+    depth, normal, report.floor_height = consistent_depth(gm["depth"], gm["normal"])
     gm["depth"] = depth.to(gm["depth"].dtype)
+    if normal is not None:
+        gm["normal"] = normal.to(gm["normal"].dtype)
     report.depth_refined = True
 
 
@@ -447,26 +394,16 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     return geo
 
 
-def away_share(normal: Tensor) -> float:
-    """Solid-angle share of normals ``[3,H,W]`` that face away from the camera (impossible for the
-    visible surfaces a panorama shows)."""
-    H, W = normal.shape[-2:]
-    d = pano.directions(H, W, normal.device, normal.dtype)
-    omega = pano.solid_angles(H, W, normal.device, normal.dtype)
-    away = ((normal * d).sum(0) > 0).to(omega.dtype)
-    return float((away * omega).sum() / omega.sum())
-
-
 def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
                        report: PredictReport) -> Tensor:
-    """The network's normals, or, when more than :data:`MAX_AWAY_SHARE` of them face away from the
-    camera, the normals of the predicted depth (at the network's resolution, guided-upsampled)."""
+    """The network's normals, or, where they have :func:`phyir.plausible_geometry.collapsed`, the
+    normals of the predicted depth (at the network's resolution, guided-upsampled)."""
     report.normals_away = away_share(normal)
-    if report.normals_away <= MAX_AWAY_SHARE:
+    if not collapsed(normal):
         report.normals_from = "network"
         return normal
     report.normals_from = "depth"
-    nd = snap_normals(pano.normals_from_depth(depth_lo.float()), level_deg=LEVEL_DEG_FROM_DEPTH)
+    nd = depth_normals(depth_lo.float())
     if tuple(nd.shape[-2:]) == tuple(normal.shape[-2:]):
         return nd
     return _upsample_layer("normal", nd, guide_lo, guide_hi)

@@ -10,8 +10,8 @@ import torch
 
 from phyir import pano
 from phyir.depth_normal import log_depth_steps, refine_depth
-from phyir.inference import REFINE_ANCHOR, REFINE_TAU
 from phyir.learn.losses import depth_normal_loss
+from phyir.plausible_geometry import REFINE_ANCHOR, REFINE_TAU
 
 
 def box_room(H: int, W: int, lo=(-2.5, -1.5, -5.0), hi=(3.5, 1.2, 3.0)) -> tuple[torch.Tensor, torch.Tensor]:
