@@ -21,6 +21,7 @@ context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per 
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 from dataclasses import astuple, replace
@@ -46,9 +47,10 @@ from phyir.scene import PanoScene
 from phyir.shading import prefilter
 from phyir.shading.render import MIRROR_ROUGHNESS
 from viewer.gl.impostors import FUSIONS, ImpostorPasses, set_lighting
-from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile
+from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile, state_key
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 from viewer.gl.quality import DRAGGING, FULL, Quality
+from viewer.refinement import Refinement
 from viewer.renderer import KINDS, TONEMAPS, draw_around
 
 __all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionPass", "InsertionRenderer", "Quality"]
@@ -286,6 +288,36 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self._fbos["draft"] = (self.ctx.framebuffer([keep]), keep)
         return self._fbos["draft"]
 
+    def fork(self) -> InsertionRenderer:
+        """A renderer of the same scene with object states, atlases and tile keys of its own, sharing
+        this one's context, programs, scene textures, meshes and the probe field (and its lock): the
+        viewer's full-quality picture is built in one (``viewer.refinement``) while draft frames
+        draw from the other.  Free it with :meth:`release_fork` before this one; fork again after
+        :meth:`set_scene`."""
+        twin = copy.copy(self)
+        twin._objects, twin._relights, twin._fbos, twin._tile_keys = {}, {}, {}, {}
+        twin._relight_pool = None
+        twin.drawn_faces = {"impostor": 0, "shadow": 0}
+        return twin
+
+    def release_fork(self) -> None:
+        """Free what a fork owns: its object states, atlases and lighting worker."""
+        if self._relight_pool is not None:
+            self._relight_pool.shutdown(cancel_futures=True)
+        self._relights.clear()
+        for st in self._objects.values():
+            st.release()
+        self._objects.clear()
+        self._tile_keys.clear()
+        self._release_fbos()
+
+    def _release_fbos(self) -> None:
+        for entry in self._fbos.values():
+            for r in entry:
+                if hasattr(r, "release"):
+                    r.release()
+        self._fbos.clear()
+
     def release(self) -> None:
         self.release_scene()
         for _mesh, vbo, ibo, vaos in self._meshes.values():
@@ -294,11 +326,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             vbo.release()
             ibo.release()
         self._meshes.clear()
-        for entry in self._fbos.values():
-            for r in entry:
-                if hasattr(r, "release"):
-                    r.release()
-        self._fbos.clear()
+        self._release_fbos()
         if self._relight_pool is not None:
             self._relight_pool.shutdown()
         self.programs.release()
@@ -313,13 +341,18 @@ class InsertionPass:
     region the objects change is drawn again from the layer (``layer.glsl``, the renderer's own
     look-up) composited and tonemapped (``display.glsl``), so a frame with objects costs the bare
     frame plus that region.  Draws while ``enabled`` and ``frame.extras.get("insert", True)``;
-    ``dragging`` selects the cheaper :data:`DRAGGING` quality."""
+    ``dragging`` selects the cheaper :data:`DRAGGING` quality.  Still frames (``progressive``) show
+    drafts too until the full-quality picture, built a slice per frame by :meth:`refine`
+    (``viewer.refinement``), is complete, then that picture; without ``progressive`` they draw at
+    full quality in one piece."""
 
     def __init__(self, insertion: InsertionRenderer, objects: list[SceneObject] | None = None):
         self.insertion = insertion
         self.objects: list[SceneObject] = objects if objects is not None else []
         self.enabled = True
         self.dragging = False
+        self.progressive = True
+        self.refinement = Refinement(insertion)
         self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
         self.impostor_every = 2  # while dragging: a moved object's impostor drawn every other frame
         self.receivers_every = 2  # and the draft's receivers on the frames it is not (_receivers_due)
@@ -328,30 +361,88 @@ class InsertionPass:
         self._receivers_kept = False
         self.fusion = "three-image"
         self.last_rect: tuple[int, int, int, int] | None = None
-        self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
+        self._plan: tuple | None = None  # (frame, what _plan_frame returned) from overwrites()
+
+    # -- the full-quality picture, a slice per frame ---------------------------------------------
+    def still_key(self, frame, size: tuple[int, int]) -> tuple | None:
+        """Everything the full-quality picture of the objects in ``frame``'s view of ``size`` =
+        (w, h) depends on; None when it is not wanted (no objects drawn, dragging, not progressive)."""
+        ins = self.insertion
+        if self.dragging or not self.progressive or not self._drawing(frame):
+            return None
+        objects = tuple((id(o), state_key(o, FULL), astuple(o.material)) for o in self.objects if o.visible)
+        return (objects, id(ins.scene), self.fusion, ins.use_projection, ins.footprint_scale,
+                type(frame.view).__name__, astuple(frame.view), tuple(size), astuple(frame.display),
+                frame.nearest, frame.background, id(frame.texture), frame.extras.get("layer_version"),
+                frame.pano_size)
+
+    def picture_key(self, frame, size: tuple[int, int]) -> tuple | None:
+        """For the renderer's view cache: what the view's picture takes from the objects (() when it
+        shows none), None while every frame differs (dragging, or not ``progressive``).  Draft
+        frames while the picture is built are drawn once and copied."""
+        if self.dragging or not self.progressive:
+            return None
+        key = self.still_key(frame, size)
+        if key is None:
+            return ()
+        return ("final" if self.refinement.shows(key) else "draft", key)
+
+    def refine(self, renderer, frame, size: tuple[int, int], final: bool = False) -> None:
+        """One slice of the full-quality picture of the view ``frame`` of ``size`` = (w, h), or all
+        that is left with ``final`` (a screenshot); the App calls it once a frame, before drawing
+        the view.  Nothing while it is not wanted (:meth:`still_key`)."""
+        key = self.still_key(frame, size)
+        if key is None:
+            self.refinement.active = False
+            return
+        self.refinement.advance(key, self.objects, frame, size, self.fusion,
+                                lambda f, rect, fb_h: self.composite_program(renderer, f, rect, fb_h), final)
+
+    def refining(self) -> bool:
+        """The full-quality picture is being built: frames should go on."""
+        return self.refinement.running
+
+    def release(self) -> None:
+        self.refinement.release()
+
+    # -- drawing ---------------------------------------------------------------------------------
+    def _drawing(self, frame) -> bool:
+        ins = self.insertion
+        return self.enabled and frame.extras.get("insert", True) and ins.scene is not None \
+            and any(o.visible for o in self.objects)
 
     def overwrites(self, renderer, frame) -> tuple[int, int, int, int] | None:
         """Called by the renderer before the display pass: prepares the objects and returns the view
         region (x, y, w, h) a draft frame will draw whole, which the display pass then skips (it
         would be overwritten); None for full-quality frames (drawn over the display pass as before)."""
-        plan = self._prepare(frame)
+        plan = self._plan_frame(frame)
         self._plan = (frame, plan)
-        if plan is None or plan[2].composite_scale >= 1:
+        if plan is None or plan[0] != "draft":
             return None
-        return plan[1]
+        return plan[1][1]
 
-    def _prepare(self, frame) -> tuple[list, tuple[int, int, int, int], Quality] | None:
-        """The objects drawn into the atlases, the view region they change and the frame's quality;
-        None when nothing is drawn.  Leaves other framebuffers bound."""
+    def _plan_frame(self, frame) -> tuple | None:
+        """("final",) when the refinement's picture is complete for this frame, else ("draft" or
+        "full", what _prepare returned); None when nothing is drawn."""
+        key = self.still_key(frame, frame.rect[2:])
+        if key is not None and self.refinement.shows(key):
+            self.insertion.forget(self.objects)
+            return ("final",)
+        plan = self._prepare(frame, draft=self.dragging or key is not None)
+        if plan is None:
+            return None
+        return ("draft" if plan[2].composite_scale < 1 else "full", plan)
+
+    def _prepare(self, frame, draft: bool) -> tuple[list, tuple[int, int, int, int], Quality] | None:
+        """The objects drawn into the atlases, the view region they change and the frame's quality
+        (``draft``: the dragging one); None when nothing is drawn.  Leaves other framebuffers bound."""
         ins = self.insertion
         ins.forget(self.objects)  # deleted objects' lighting, unused meshes
-        if not self.enabled or not frame.extras.get("insert", True) or ins.scene is None:
-            return None
-        if not any(o.visible for o in self.objects):
+        if not self._drawing(frame):
             return None
         _, _, w, h = frame.rect
         quality = replace(DRAGGING, background_lighting=self.background_lighting,
-                          impostor_every=self.impostor_every) if self.dragging else FULL
+                          impostor_every=self.impostor_every) if draft else FULL
         H, W = ins.scene.size
         drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
         rect = ins.screen_rect(drawn, frame.view, (w, h)) if drawn else None
@@ -363,18 +454,22 @@ class InsertionPass:
         target = ctx.fbo
         vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
         planned, self._plan = self._plan, None
-        plan = planned[1] if planned is not None and planned[0] is frame else self._prepare(frame)
+        plan = planned[1] if planned is not None and planned[0] is frame else self._plan_frame(frame)
         target.use()
         ctx.viewport = (vx, vy, vw, vh)
         if plan is None:
             return
-        drawn, rect, quality = plan
         x, y, w, h = frame.rect
         fb_h = vy + y + h
-        if quality.composite_scale < 1:
-            self._draft(renderer, frame, drawn, rect, fb_h, quality)
+        if plan[0] == "final":
+            self.refinement.show(renderer, frame, fb_h)
+            rect = self.refinement.rect
         else:
-            self._full(renderer, frame, drawn, rect, fb_h, quality)
+            drawn, rect, quality = plan[1]
+            if plan[0] == "draft":
+                self._draft(renderer, frame, drawn, rect, fb_h, quality)
+            else:
+                self._full(renderer, frame, drawn, rect, fb_h)
         ctx.viewport = (vx, vy, vw, vh)
         self.last_rect = rect
 
@@ -392,16 +487,22 @@ class InsertionPass:
                     VIEW_KIND=int(isinstance(frame.view, PerspectiveView)),
                     TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0, **more)
 
-    def _full(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
-        """The composite over the region ``rect`` of the view, at its resolution."""
+    def composite_program(self, renderer, frame, rect, fb_h: float) -> moderngl.Program:
+        """The full-quality composite for ``frame`` (display colours) with its view placed at
+        ``rect`` (x, y, w, h; y from the top) of a framebuffer ``fb_h`` high, the frame's uniforms set."""
+        prog = self.insertion.program("fullscreen.vert", "composite.frag", **self._defines(frame, FULL))
+        self._frame_program(prog, renderer, frame, rect, fb_h)
+        return prog
+
+    def _full(self, renderer, frame, drawn, rect, fb_h: float) -> None:
+        """The composite over the region ``rect`` of the view, at its resolution, in one piece."""
         ins, ctx = self.insertion, self.insertion.ctx
         x, y, w, h = frame.rect
         rx, ry, rw, rh = rect
-        prog = ins.program("fullscreen.vert", "composite.frag", **self._defines(frame, quality))
         ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.viewport = (x + rx, fb_h - y - ry - rh, rw, rh)
+        prog = self.composite_program(renderer, frame, (x, y, w, h), fb_h)
         ins.bind_scene(prog)
-        self._frame_program(prog, renderer, frame, (x, y, w, h), fb_h)
         ins.composite_uniforms(prog, drawn)
         ins.draw_fullscreen(prog)
 
