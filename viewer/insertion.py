@@ -393,7 +393,7 @@ class InsertionPass:
         the view.  Nothing while it is not wanted (:meth:`still_key`)."""
         key = self.still_key(frame, size)
         if key is None:
-            self.refinement.active = False
+            self.refinement.pause(self.objects)
             return
         self.refinement.advance(key, self.objects, frame, size, self.fusion,
                                 lambda f, rect, fb_h: self.composite_program(renderer, f, rect, fb_h), final)

@@ -12,7 +12,8 @@ their impostors, shadow maps and the composite), which would stop the interface 
 3. the composite into an off-screen texture in strips of rows.
 
 Each :meth:`Refinement.advance` (once a frame) draws at most one slice, its size taken from what
-the last slices of its kind cost, to about ``budget_s``.  The picture is shown once complete and
+the last slices of its kind cost, to about ``budget_s``; none in a frame whose input changed the
+picture (while the view is panned, say, frames draw only the draft).  The picture is shown once complete and
 until anything it depends on (its key) changes; a change starts it again (tiles of objects that did
 not change are kept).  The pixels are those of the frame drawn in one piece: the same draws, in
 scissored strips, at the same pixel positions.
@@ -20,7 +21,9 @@ scissored strips, at the same pixel positions.
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from collections.abc import Callable, Generator
 
 import moderngl
@@ -32,6 +35,7 @@ from viewer.gl.quality import FULL
 SLICE_BUDGET_S = 0.05  # GL time a slice aims at (a frame also draws the interface)
 FIRST_ROWS = 16  # rows of a strip of a kind whose cost is not known yet
 MIN_ROWS = 4
+COST_WINDOW = 4  # a strip is sized for the dearest of the last few of its kind
 
 
 class Refinement:
@@ -53,7 +57,7 @@ class Refinement:
         self.slices: list[str] = []
         self.starts = 0
         self._steps: Generator | None = None
-        self._cost: dict[str, float] = {}  # seconds per texel of each kind of slice
+        self._costs: dict[str, deque] = {}  # the last seconds per unit of work of each kind of strip
         self._canvas: tuple | None = None  # (framebuffer, texture) the composite is drawn into
         self._origin = (0, 0)  # the canvas texel of the region's bottom-left pixel
         self._whole = False
@@ -76,6 +80,8 @@ class Refinement:
         self.active = True
         if key != self.key:
             self._start(key, objects, frame, size, fusion, composite)
+            if not final:
+                return  # input goes on, maybe: this frame is the draft's, slices start with the next
         if self.done:
             return
         if final:
@@ -89,10 +95,20 @@ class Refinement:
             return
         self.finish()  # what earlier passes queued is not this slice's
         t = time.perf_counter()
-        kind, texels = self._next()
-        if texels:
+        kind, strip = self._next()
+        if strip is not None:
             self.finish()
-            self._learn(kind, texels, time.perf_counter() - t)
+            work = _work(kind, *strip)
+            self._costs.setdefault(kind, deque(maxlen=COST_WINDOW)).append((time.perf_counter() - t) / work)
+
+    def pause(self, objects: list[SceneObject]) -> None:
+        """The view does not show the objects now (dragging, another layer): no frames for this.
+        Deleted objects' states are freed, and everything once no object is left to show."""
+        self.active = False
+        if self.twin is not None and not any(o.visible for o in objects):
+            self.release()  # made again when objects come back
+        elif self.twin is not None:
+            self.twin.forget(objects)
 
     def _start(self, key, objects, frame, size, fusion, composite) -> None:
         ins = self.insertion
@@ -107,36 +123,35 @@ class Refinement:
         self.starts += 1
         self._steps = self._build(list(objects), frame, size, fusion, composite)
 
-    def _next(self) -> tuple[str, int]:
-        """Run the build to its next slice: (kind, texels drawn)."""
+    def _next(self) -> tuple[str, tuple | None]:
+        """Run the build to its next slice: (kind, the strip drawn: (width, first row, rows) or None)."""
         try:
-            kind, texels = next(self._steps)
+            kind, strip = next(self._steps)
         except StopIteration:
             self.done = True
-            return "done", 0
+            return "done", None
         self.slices.append(kind)
-        return kind, texels
+        return kind, strip
 
-    def _rows(self, kind: str, width: int) -> int:
-        """Rows of the next strip of ``kind``, ``width`` texels wide: about ``budget_s`` at the cost
-        measured so far."""
-        cost = self._cost.get(kind)
+    def _rows(self, kind: str, width: int, start: int) -> int:
+        """Rows of the next strip of ``kind`` (``width`` texels wide, from row ``start``): about
+        ``budget_s`` of work at the dearest cost of the last few strips of its kind (a slow one, e.g.
+        under load or compiling a shader, shrinks the next few)."""
+        costs = self._costs.get(kind)
         if self._whole:
             return 1 << 30
-        if cost is None:
+        if not costs:
             return FIRST_ROWS
-        return max(MIN_ROWS, int(self.budget_s / (cost * width)))
-
-    def _learn(self, kind: str, texels: int, seconds: float) -> None:
-        """A slice's cost per texel: the estimate rises at once and falls by halves (a slow slice,
-        e.g. under load or compiling a shader, shrinks the next few)."""
-        cost, old = seconds / texels, self._cost.get(kind)
-        self._cost[kind] = cost if old is None or cost > old else (old + cost) / 2
+        budget, rows, work = self.budget_s / max(costs), 0, 0.0
+        while work < budget and rows < 4096:
+            work += _work(kind, width, start + rows, 1)
+            rows += 1
+        return max(MIN_ROWS, rows - (work > budget))
 
     def _build(self, objects, frame, size, fusion, composite) -> Generator[tuple[str, int], None, None]:
         twin = self.twin
         while not twin.lighting_ready(objects, FULL):
-            yield "lighting", 0
+            yield "lighting", None
         H, W = twin.scene.size
         angle = pixel_angle(frame.view, size, (H, W))
         drawn = yield from twin.prepare_steps(objects, angle, FULL, fusion, self._rows)
@@ -146,12 +161,12 @@ class Refinement:
         fbo = self._target(rect, size)
         y, rows_left = 0, rect[3]
         while rows_left > 0:
-            rows = min(rows_left, self._rows("composite", rect[2]))
+            rows = min(rows_left, self._rows("composite", rect[2], y))
             self._composite_strip(fbo, drawn, frame, rect, size, y, rows, composite)
             y, rows_left = y + rows, rows_left - rows
             if rows_left == 0:
                 self.rect, self.done = rect, True
-            yield "composite", rect[2] * rows
+            yield "composite", (rect[2], y - rows, rows)
 
     def _target(self, rect: tuple[int, int, int, int], size: tuple[int, int]) -> moderngl.Framebuffer:
         """The canvas for the region ``rect`` of a view of ``size``: one texel larger each way, so
@@ -210,8 +225,20 @@ class Refinement:
         """Free the canvas and the fork's states and atlases (before the renderer it forked)."""
         if self._steps is not None:
             self._steps.close()
+            self._steps = None
         self._release_canvas()
         if self.twin is not None:
             self.twin.release_fork()
             self.twin = None
         self.key, self.done = None, False
+
+
+def _work(kind: str, width: int, start: int, rows: int) -> float:
+    """What a strip of ``kind`` costs, in units its time is measured per: texels for the composite
+    (the same shading everywhere); for an impostor tile (``width`` texels square) mostly its texels
+    inside the object's outline, a disc filling the tile, plus a tenth of the rest (clears, quads)."""
+    if kind != "impostor":
+        return float(width * rows)
+    r = width / 2
+    inside = sum(2 * math.sqrt(max(r * r - (y + 0.5 - r) ** 2, 0.0)) for y in range(start, start + rows))
+    return 0.9 * inside + 0.1 * width * rows

@@ -128,7 +128,14 @@ def test_a_change_while_refining_starts_again_and_nothing_stale_is_shown(app):
     key = ref.key
     drag(app, 1, 8)  # moved again
     app.frame()
-    assert ref.key != key and not ref.done and len(ref.slices) <= 1
+    assert ref.key != key and not ref.done and ref.slices == []  # the frame of a change: the draft only
+    # while the view is turned frame after frame, each frame starts it again and draws no slice
+    starts, yaw = ref.starts, app.views["perspective"].yaw
+    for k in range(1, 4):
+        app.views["perspective"].update(yaw=yaw + 0.01 * k)
+        app.frame()
+    assert ref.starts == starts + 3 and ref.slices == []
+    app.views["perspective"].update(yaw=yaw)
     per_frame = refine(app)
     assert max(per_frame) == 1
     assert same_picture(view_pixels(app), in_one_piece(app))

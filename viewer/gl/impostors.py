@@ -62,13 +62,14 @@ class ImpostorPasses:
         return run_steps(self.prepare_steps(objects, angle, quality, fusion))
 
     def prepare_steps(self, objects: list[SceneObject], angle: float, quality: Quality = FULL,
-                      fusion: str = "three-image", rows: Callable[[str, int], int] | None = None
-                      ) -> Generator[tuple[str, int], None, list[tuple[ObjectGPU, Tile]]]:
+                      fusion: str = "three-image", rows: Callable[[str, int, int], int] | None = None
+                      ) -> Generator[tuple[str, tuple | None], None, list[tuple[ObjectGPU, Tile]]]:
         """:meth:`prepare` a piece at a time (the viewer's refinement, ``viewer.refinement``): yields
-        ("impostor", texels) after each strip of an impostor tile, of ``rows("impostor", width)``
-        texel rows (None: whole tiles), and ("shadow", texels) after each shadow map; returns what
-        :meth:`prepare` returns.  The same pixels as :meth:`prepare` (scissored strips of the same
-        draws); a tile counts as drawn (kept by later calls) only once all its strips are."""
+        ("impostor", (n, y, rows)) after each strip of an n x n impostor tile, its rows y to y + rows
+        from ``rows("impostor", n, y)`` (None: whole tiles), and ("shadow", None) after each shadow
+        map; returns what :meth:`prepare` returns.  The same pixels as :meth:`prepare` (scissored
+        strips of the same draws); a tile counts as drawn (kept by later calls) only once all its
+        strips are."""
         if fusion not in FUSIONS:
             raise PhyIRError(f"fusion must be one of {', '.join(FUSIONS)}, got {fusion!r}")
         self.forget(objects)
@@ -119,12 +120,12 @@ class ImpostorPasses:
             self.drawn_faces["impostor"] += len(mesh.faces)
             y = 0
             while y < n:
-                step = n - y if rows is None else max(1, min(n - y, rows("impostor", n)))
+                step = n - y if rows is None else max(1, min(n - y, rows("impostor", n, y)))
                 self._draw_impostor(fbo, st, vp, mesh, rect, (rect[0], y, n, step), fusion)
                 y += step
                 if y == n:
                     self._tile_keys[("impostor", rect)] = key
-                yield "impostor", n * step
+                yield "impostor", (n, y - step, step)
         yield from self._shadow_steps([st for st, _ in out], quality)
         self.ctx.disable(moderngl.DEPTH_TEST)
         return out
@@ -249,9 +250,9 @@ class ImpostorPasses:
         prog["view_proj"].write(matrix_bytes(vp))
         self._vao(mesh, prog).render(moderngl.TRIANGLES)
 
-    def _shadow_steps(self, states: list[ObjectGPU], quality: Quality) -> Iterator[tuple[str, int]]:
+    def _shadow_steps(self, states: list[ObjectGPU], quality: Quality) -> Iterator[tuple[str, None]]:
         """Each dominant light's view of its object into a shadow-atlas tile; yields ("shadow",
-        texels) after each map drawn."""
+        None) after each map drawn."""
         lights = [(st, lt) for st in states for lt in st.lights][:MAX_LIGHTS]
         self._shadow_list = lights
         if not lights:
@@ -282,7 +283,7 @@ class ImpostorPasses:
             self.ctx.scissor = None
             self.ctx.disable(moderngl.DEPTH_TEST)
             self._tile_keys[("shadow", rect)] = key
-            yield "shadow", s * s
+            yield "shadow", None
 
     def composite_uniforms(self, prog: moderngl.Program, drawn: list[tuple[ObjectGPU, Tile]]) -> None:
         """The uniforms of ``composite.frag`` for the objects :meth:`prepare` drew: their impostor
