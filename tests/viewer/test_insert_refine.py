@@ -158,3 +158,17 @@ def test_a_screenshot_finishes_the_picture_first(app):
     shown = view_pixels(app)
     assert ref.done
     assert same_picture(shown, in_one_piece(app))
+
+
+def test_a_resized_window_starts_it_again(app):
+    ref = app.objects.hook.refinement
+    refine(app)
+    key, size = ref.key, app.surface.size
+    app.surface.size = (size[0] - 60, size[1] - 30)
+    try:
+        app.frame()
+        assert ref.key != key and not ref.done
+        refine(app)
+        assert same_picture(view_pixels(app), in_one_piece(app))
+    finally:
+        app.surface.size = size

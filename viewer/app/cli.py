@@ -365,11 +365,12 @@ def bench_drag(app: App, frames: int = 60) -> None:
           f"{app.view_size()[1]}: median {_median_ms(times):.1f} ms, 95th percentile "
           f"{1000 * times[int(0.95 * (len(times) - 1))]:.1f} ms, max {1000 * times[-1]:.1f} ms over {frames} "
           f"frames")
-    slices = app.objects.hook.refinement.slices
+    slices = app.objects.hook.refinement.slices if app.objects.hook.progressive else []
+    drew = ", ".join(f"{slices.count(k)} {k}" for k in dict.fromkeys(slices))
+    drew = f"{len(slices)} slices: {drew}" if slices else "in one piece"
     print(f"after release: {len(after)} frames until the full-quality picture was complete, "
           f"{1000 * complete:.0f} ms after the release; the longest frame {1000 * max(after):.1f} ms, median "
-          f"{_median_ms(sorted(after)):.1f} ms ({len(slices)} slices: "
-          + ", ".join(f"{slices.count(k)} {k}" for k in dict.fromkeys(slices)) + ")")
+          f"{_median_ms(sorted(after)):.1f} ms ({drew})")
 
 
 def _until_refined(app: App) -> tuple[list[float], float]:
