@@ -2,7 +2,7 @@
 surfaces, the ImGuizmo gizmo and export (docs/insertion.md).
 
 :class:`ObjectsPanel` owns the objects and an :class:`viewer.insertion.InsertionRenderer` whose
-:class:`viewer.insertion.InsertionPass` (``hook``) the app puts first among its renderer's overlay
+:class:`viewer.insertion_pass.InsertionPass` (``hook``) the app puts first among its renderer's overlay
 passes.  Its methods
 are what the UI calls (and what tests and scripts call): ``add``, ``drop_at``, ``duplicate``,
 ``delete``, ``set_material``, ``begin_drag``/``drag_to``/``end_drag``, ``export``.  While dragging the
@@ -25,7 +25,8 @@ from phyir.errors import PhyIRError
 from phyir.insert import placement
 from phyir.insert.objects import PRESETS, PRIMITIVES, ObjectMaterial, SceneObject, object_mesh
 from phyir.insert.views import EquirectView, PerspectiveView, write_passes
-from viewer.insertion import FUSIONS, InsertionPass, InsertionRenderer
+from viewer.insertion import FUSIONS, InsertionRenderer
+from viewer.insertion_pass import InsertionPass
 
 DEFAULT_SIZE = 0.25  # metres: primitives are unit-size, added ones start at this scale
 
