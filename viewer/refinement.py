@@ -130,6 +130,9 @@ class Refinement:
         except StopIteration:
             self.done = True
             return "done", None
+        except Exception:
+            self.key = None  # (e.g. a lighting job's error) the next frame starts again
+            raise
         self.slices.append(kind)
         return kind, strip
 

@@ -63,8 +63,11 @@ class ObjectsPanel:
 
     def refine(self, frame, size: tuple[int, int], final: bool = False) -> None:
         """A slice of the view's full-quality picture (all of it with ``final``): once a frame,
-        before the view is drawn."""
-        self.hook.refine(self.app.renderer, frame, size, final)
+        before the view is drawn (``frame`` None: the view shows nothing)."""
+        if frame is None:
+            self.hook.refinement.pause(self.objects)
+        else:
+            self.hook.refine(self.app.renderer, frame, size, final)
 
     def picture_key(self, frame, size: tuple[int, int]) -> tuple | None:
         """What the view's picture takes from the objects (the view cache's key), None: uncachable."""
