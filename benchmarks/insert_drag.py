@@ -114,7 +114,8 @@ def _insert(ctx, scene, obj):
 
     from phyir import pano
     from phyir.insert import placement
-    from viewer.insertion import InsertionPass, InsertionRenderer
+    from viewer.insertion import InsertionRenderer
+    from viewer.insertion_pass import InsertionPass
 
     H, W = scene.size
     ins = InsertionRenderer(ctx)

@@ -1,6 +1,8 @@
 """Where a dragging frame of phyir-view goes with objects in the scene: the insertion's ``prepare``
 (lighting, impostors, shadow maps) and its composite passes, each ended by ``ctx.finish()``, while
-the first object is dragged in the perspective view (``viewer.app.cli.bench_drag``).
+the first object is dragged in the perspective view (``viewer.app.cli.bench_drag``).  Still frames
+are drawn in one piece here (``InsertionPass.progressive = False``): the frame after the release is
+the full-quality work the viewer otherwise spreads over frames (``viewer.refinement``).
 
     .venv/bin/python benchmarks/viewer_drag_parts.py [SCENE] [--mesh vase.glb] [--frames 30]
 
@@ -48,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         app.wait_idle(120)
         apply_args(app, opts, wait=True)
         ins = app.objects.insertion
+        app.objects.hook.progressive = False
         times = {"prepare": [], "composite passes": []}  # (frame number, seconds) per call
         frame_no = [0]
 

@@ -1,7 +1,7 @@
 """Virtual object insertion on the GPU (ModernGL): shading, shadows and compositing (docs/insertion.md).
 
 :class:`InsertionRenderer` works on any moderngl context: the viewer's window (as an overlay pass of
-:class:`viewer.renderer.Renderer`, see :class:`InsertionPass`) or a headless EGL
+:class:`viewer.renderer.Renderer`, see :class:`viewer.insertion_pass.InsertionPass`) or a headless EGL
 context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per frame:
 
 1. each object's lighting (CPU, torch, only when it moved): the light at its centre
@@ -21,9 +21,9 @@ context (:meth:`InsertionRenderer.render_view`, used by ``phyir insert``).  Per 
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
-from dataclasses import astuple, replace
 
 import moderngl
 import numpy as np
@@ -49,9 +49,9 @@ from viewer.gl.impostors import FUSIONS, ImpostorPasses, set_lighting
 from viewer.gl.object_state import ObjectGPU, ObjectStates, Tile
 from viewer.gl.programs import ProgramCache, set_uniform, set_view
 from viewer.gl.quality import DRAGGING, FULL, Quality
-from viewer.renderer import KINDS, TONEMAPS, draw_around
 
-__all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionPass", "InsertionRenderer", "Quality"]
+__all__ = ["DRAGGING", "FULL", "FUSIONS", "IMAGE_HALF_MAX", "InsertionRenderer", "Quality",
+           "composite_defines"]
 
 IMAGE_HALF_MAX = 65000.0
 
@@ -213,7 +213,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         try:
             kind = int(isinstance(view, PerspectiveView))
             prog = self.program("fullscreen.vert", "composite.frag", VIEW_KIND=kind, VIEWER=0,
-                                **_composite_defines(quality))
+                                **composite_defines(quality))
             fbo.use()
             fbo.viewport = (0, 0, w, h)
             fbo.clear(0.0, 0.0, 0.0, 0.0)
@@ -286,6 +286,36 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self._fbos["draft"] = (self.ctx.framebuffer([keep]), keep)
         return self._fbos["draft"]
 
+    def fork(self) -> InsertionRenderer:
+        """A renderer of the same scene with object states, atlases and tile keys of its own, sharing
+        this one's context, programs, scene textures, meshes and the probe field (and its lock): the
+        viewer's full-quality picture is built in one (``viewer.refinement``) while draft frames
+        draw from the other.  Free it with :meth:`release_fork` before this one; fork again after
+        :meth:`set_scene`."""
+        twin = copy.copy(self)
+        twin._objects, twin._relights, twin._fbos, twin._tile_keys = {}, {}, {}, {}
+        twin._relight_pool = None
+        twin.drawn_faces = {"impostor": 0, "shadow": 0}
+        return twin
+
+    def release_fork(self) -> None:
+        """Free what a fork owns: its object states, atlases and lighting worker."""
+        if self._relight_pool is not None:
+            self._relight_pool.shutdown(cancel_futures=True)
+        self._relights.clear()
+        for st in self._objects.values():
+            st.release()
+        self._objects.clear()
+        self._tile_keys.clear()
+        self._release_fbos()
+
+    def _release_fbos(self) -> None:
+        for entry in self._fbos.values():
+            for r in entry:
+                if hasattr(r, "release"):
+                    r.release()
+        self._fbos.clear()
+
     def release(self) -> None:
         self.release_scene()
         for _mesh, vbo, ibo, vaos in self._meshes.values():
@@ -294,187 +324,15 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
             vbo.release()
             ibo.release()
         self._meshes.clear()
-        for entry in self._fbos.values():
-            for r in entry:
-                if hasattr(r, "release"):
-                    r.release()
-        self._fbos.clear()
+        self._release_fbos()
         if self._relight_pool is not None:
             self._relight_pool.shutdown()
         self.programs.release()
         self.dfg.release()
 
 
-class InsertionPass:
-    """The objects of one scene as an overlay pass of :class:`viewer.renderer.Renderer`
-    (its owner puts it first: ``renderer.overlay_passes.insert(0, InsertionPass(...))``).
-
-    Overlay passes run right after the display pass, with its framebuffer and viewport bound; the
-    region the objects change is drawn again from the layer (``layer.glsl``, the renderer's own
-    look-up) composited and tonemapped (``display.glsl``), so a frame with objects costs the bare
-    frame plus that region.  Draws while ``enabled`` and ``frame.extras.get("insert", True)``;
-    ``dragging`` selects the cheaper :data:`DRAGGING` quality."""
-
-    def __init__(self, insertion: InsertionRenderer, objects: list[SceneObject] | None = None):
-        self.insertion = insertion
-        self.objects: list[SceneObject] = objects if objects is not None else []
-        self.enabled = True
-        self.dragging = False
-        self.background_lighting = True  # while dragging: a moved object's lighting on a worker thread
-        self.impostor_every = 2  # while dragging: a moved object's impostor drawn every other frame
-        self.receivers_every = 2  # and the draft's receivers on the frames it is not (_receivers_due)
-        self.receivers_drawn = 0  # draft receiver passes drawn so far
-        self._receivers_key: tuple | None = None
-        self._receivers_kept = False
-        self.fusion = "three-image"
-        self.last_rect: tuple[int, int, int, int] | None = None
-        self._plan: tuple | None = None  # (frame, what _prepare returned) from overwrites()
-
-    def overwrites(self, renderer, frame) -> tuple[int, int, int, int] | None:
-        """Called by the renderer before the display pass: prepares the objects and returns the view
-        region (x, y, w, h) a draft frame will draw whole, which the display pass then skips (it
-        would be overwritten); None for full-quality frames (drawn over the display pass as before)."""
-        plan = self._prepare(frame)
-        self._plan = (frame, plan)
-        if plan is None or plan[2].composite_scale >= 1:
-            return None
-        return plan[1]
-
-    def _prepare(self, frame) -> tuple[list, tuple[int, int, int, int], Quality] | None:
-        """The objects drawn into the atlases, the view region they change and the frame's quality;
-        None when nothing is drawn.  Leaves other framebuffers bound."""
-        ins = self.insertion
-        ins.forget(self.objects)  # deleted objects' lighting, unused meshes
-        if not self.enabled or not frame.extras.get("insert", True) or ins.scene is None:
-            return None
-        if not any(o.visible for o in self.objects):
-            return None
-        _, _, w, h = frame.rect
-        quality = replace(DRAGGING, background_lighting=self.background_lighting,
-                          impostor_every=self.impostor_every) if self.dragging else FULL
-        H, W = ins.scene.size
-        drawn = ins.prepare(self.objects, pixel_angle(frame.view, (w, h), (H, W)), quality, self.fusion)
-        rect = ins.screen_rect(drawn, frame.view, (w, h)) if drawn else None
-        return None if rect is None else (drawn, rect, quality)
-
-    def __call__(self, renderer, frame) -> None:
-        ctx = self.insertion.ctx
-        self.last_rect = None
-        target = ctx.fbo
-        vx, vy, vw, vh = ctx.viewport  # the display pass's: (x, fb_h - y - h, w, h)
-        planned, self._plan = self._plan, None
-        plan = planned[1] if planned is not None and planned[0] is frame else self._prepare(frame)
-        target.use()
-        ctx.viewport = (vx, vy, vw, vh)
-        if plan is None:
-            return
-        drawn, rect, quality = plan
-        x, y, w, h = frame.rect
-        fb_h = vy + y + h
-        if quality.composite_scale < 1:
-            self._draft(renderer, frame, drawn, rect, fb_h, quality)
-        else:
-            self._full(renderer, frame, drawn, rect, fb_h, quality)
-        ctx.viewport = (vx, vy, vw, vh)
-        self.last_rect = rect
-
-    def _frame_program(self, prog, renderer, frame, rect, fb_h: float) -> None:
-        """The view, layer and display uniforms ``prog`` shares with the display pass."""
-        set_view(prog, frame.view, rect, fb_h)
-        frame.texture.use(12)
-        set_uniform(prog, "layer", 12)
-        set_uniform(prog, "pano_size", (float(frame.pano_size[1]), float(frame.pano_size[0])))
-        renderer.set_display(prog, frame)  # exposure, tone map and colour map as the display pass
-
-    def _defines(self, frame, quality: Quality, **more: int) -> dict[str, int]:
-        d = frame.display
-        return dict(VIEWER=1, **_composite_defines(quality), NEAREST=int(frame.nearest), KIND=KINDS[d.kind],
-                    VIEW_KIND=int(isinstance(frame.view, PerspectiveView)),
-                    TONEMAP=TONEMAPS.index(d.tonemap) if d.kind == "hdr" else 0, **more)
-
-    def _full(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
-        """The composite over the region ``rect`` of the view, at its resolution."""
-        ins, ctx = self.insertion, self.insertion.ctx
-        x, y, w, h = frame.rect
-        rx, ry, rw, rh = rect
-        prog = ins.program("fullscreen.vert", "composite.frag", **self._defines(frame, quality))
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        ctx.viewport = (x + rx, fb_h - y - ry - rh, rw, rh)
-        ins.bind_scene(prog)
-        self._frame_program(prog, renderer, frame, (x, y, w, h), fb_h)
-        ins.composite_uniforms(prog, drawn)
-        ins.draw_fullscreen(prog)
-
-    def _draft_programs(self, frame, quality: Quality) -> tuple[moderngl.Program, moderngl.Program]:
-        """The draft composite (linear outputs: one variant per view kind, whatever the layer's
-        display; each variant costs llvmpipe megabytes) and the pass putting it over the layer."""
-        ins = self.insertion
-        kind = int(isinstance(frame.view, PerspectiveView))
-        prog = ins.program("fullscreen.vert", "composite.frag", VIEWER=1, DRAFT=1, VIEW_KIND=kind,
-                           **_composite_defines(quality))
-        return prog, ins.program("fullscreen.vert", "composite_up.frag", **self._defines(frame, quality))
-
-    def _receivers_due(self, key: tuple) -> bool:
-        """Whether this draft frame draws the receivers again: with ``receivers_every`` = 2, a frame
-        that drew an impostor keeps the last frame's receivers when they were drawn for the same
-        region and view (the costs alternate: one frame the impostor, the next the receivers; the
-        shadows lag the object by at most a frame)."""
-        keep = self.receivers_every > 1 and self.insertion.drawn_faces["impostor"] > 0 \
-            and self._receivers_key == key and not self._receivers_kept
-        self._receivers_kept = keep
-        self._receivers_key = key
-        self.receivers_drawn += not keep
-        return not keep
-
-    def _draft(self, renderer, frame, drawn, rect, fb_h: float, quality: Quality) -> None:
-        """The receivers (the objects' shadows) at ``quality.composite_scale`` of the region's
-        resolution, then put over the layer with the objects at full resolution (the panorama and
-        the objects' edges stay sharp while they move)."""
-        ins, ctx = self.insertion, self.insertion.ctx
-        target = ctx.fbo
-        x, y, w, h = frame.rect
-        rx, ry, rw, rh = rect
-        s = quality.composite_scale
-        cw, ch = max(1, math.ceil(rw * s)), max(1, math.ceil(rh * s))
-        fbo, keep_tex = ins.draft_targets(cw, ch)
-        prog, up = self._draft_programs(frame, quality)
-        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        fbo.use()
-        ctx.viewport = (0, 0, cw, ch)
-        ins.bind_scene(prog)
-        view = frame.view if isinstance(frame.view, PerspectiveView) else \
-            EquirectView(center=frame.view.center, zoom=frame.view.zoom * s)
-        self._frame_program(prog, renderer, replace(frame, view=view), (-rx * s, -ry * s, w * s, h * s), ch)
-        key = (cw, ch, rect, astuple(view), id(frame.texture))
-        if self._receivers_due(key):
-            ins.composite_uniforms(prog, drawn)
-            ins.draw_fullscreen(prog)
-        target.use()
-        region = (x + rx, fb_h - y - ry - rh, rw, rh)
-        ctx.viewport = region
-        self._frame_program(up, renderer, frame, (x, y, w, h), fb_h)
-        ins.impostor_uniforms(up, drawn)
-        keep_tex.use(14)
-        set_uniform(up, "draft_keep", 14)
-        set_uniform(up, "draft_rect", tuple(float(r) for r in region))
-        set_uniform(up, "draft_uv_scale", (rw * s / cw, rh * s / ch))
-        # the objects' look-ups only where they can be (they cost as much as the rest of the pass),
-        # each pixel drawn once: the region around their outline without them, the outline with them
-        outline = ins.screen_rect(drawn, frame.view, (w, h), reach=False)
-        hole = None
-        if outline is not None:
-            ox0, oy0 = max(outline[0], rx), max(outline[1], ry)
-            ox1, oy1 = min(outline[0] + outline[2], rx + rw), min(outline[1] + outline[3], ry + rh)
-            hole = (x + ox0, fb_h - y - oy1, ox1 - ox0, oy1 - oy0) if ox1 > ox0 and oy1 > oy0 else None
-        set_uniform(up, "n_objects", 0)
-        draw_around(ctx, region, hole, lambda: ins.draw_fullscreen(up))
-        if hole is not None:
-            ctx.viewport = hole
-            set_uniform(up, "n_objects", len(drawn))
-            ins.draw_fullscreen(up)
-
-
-def _composite_defines(quality: Quality) -> dict[str, int]:
+def composite_defines(quality: Quality) -> dict[str, int]:
+    """composite.frag's defines for ``quality``'s cheaper paths."""
     return {"GLOSSY_RECEIVERS": int(quality.glossy_receivers), "PROXY_LOOKUPS": int(quality.proxy_lookups),
             "BLOCKER_SEARCH": int(quality.blocker_search)}
 

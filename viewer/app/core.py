@@ -214,8 +214,10 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self.ctx.viewport = (0, 0, fw, fh)
         target.clear(*BACKGROUND, 1.0, viewport=(0, 0, fw, fh))
         spec = self.frame_spec()
+        rect = self.view_rect()
+        # a slice of the objects' full-quality picture (a capture finishes it: it shows it)
+        self.objects.refine(spec, tuple(rect[2:]), final=capture)
         if spec is not None:
-            rect = self.view_rect()
             # a frame that uploaded a texture shows the previous picture: the redraw waits a frame
             self.renderer.render(target, rect, spec, fb_size=(fw, fh), cache_key=self._view_key(spec, rect),
                                  stale_ok=uploaded)

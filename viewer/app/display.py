@@ -140,6 +140,7 @@ class DisplaySettings:
         versus = self._compare_spec(layer)  # viewer.app.comparison: against the reference
         extras = {"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene,
                   "insert": layer == "image" and versus is None,
+                  "layer_version": self._tex_version.get((src, layer), 0),
                   "reference_version": versus[1] if versus else 0}
         return Frame(texture=tex, pano_size=self.size, view=self.view, display=self.display(layer),
                      nearest=near, markers=self.markers(), background=BACKGROUND, extras=extras,
@@ -147,15 +148,18 @@ class DisplaySettings:
 
     def _view_key(self, spec: Frame, rect) -> tuple | None:
         """Everything the view's picture depends on (the renderer redraws it when this changes);
-        None when linear passes (e.g. inserted objects) draw: they keep their own state."""
+        None when linear passes draw (they keep their own state) or objects are dragged."""
+        objects = ()
         if (self.renderer.linear_passes or self.objects_active()) and spec.compare is None:
-            return None
+            objects = None if self.renderer.linear_passes else self.objects.picture_key(spec, tuple(rect[2:]))
+            if objects is None:
+                return None
         fields = dataclasses.astuple
         version = next((self._tex_version.get(k, 0) for k, t in self._textures.items()
                         if t is spec.texture), 0)
         return (id(spec.texture), version, spec.pano_size, fields(spec.view), fields(spec.display),
                 spec.nearest, tuple(map(fields, spec.markers)), spec.background, spec.extras["marker_radius"],
-                tuple(rect[2:]), _compare_key(spec))
+                tuple(rect[2:]), _compare_key(spec), objects)
 
 
 def _compare_key(spec: Frame) -> tuple | None:

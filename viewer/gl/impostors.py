@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import astuple
 
 import moderngl
@@ -58,10 +59,20 @@ class ImpostorPasses:
                 fusion: str = "three-image") -> list[tuple[ObjectGPU, Tile]]:
         """Draw the impostors and shadow maps of the visible objects for views of ``angle`` radians
         per pixel; returns the drawn objects (far to near) with their impostor tiles."""
+        return run_steps(self.prepare_steps(objects, angle, quality, fusion))
+
+    def prepare_steps(self, objects: list[SceneObject], angle: float, quality: Quality = FULL,
+                      fusion: str = "three-image", rows: Callable[[str, int, int], int] | None = None
+                      ) -> Generator[tuple[str, tuple | None], None, list[tuple[ObjectGPU, Tile]]]:
+        """:meth:`prepare` a piece at a time (the viewer's refinement, ``viewer.refinement``): yields
+        ("impostor", (n, y, rows)) after each strip of an n x n impostor tile, its rows y to y + rows
+        from ``rows("impostor", n, y)`` (None: whole tiles), and ("shadow", None) after each shadow
+        map; returns what :meth:`prepare` returns.  The same pixels as :meth:`prepare` (scissored
+        strips of the same draws); a tile counts as drawn (kept by later calls) only once all its
+        strips are."""
         if fusion not in FUSIONS:
             raise PhyIRError(f"fusion must be one of {', '.join(FUSIONS)}, got {fusion!r}")
         self.forget(objects)
-        ctx = self.ctx
         work = []
         for obj in objects:
             if not obj.visible:
@@ -80,18 +91,15 @@ class ImpostorPasses:
         self.drawn_faces = {"impostor": 0, "shadow": 0}
         out: list[tuple[ObjectGPU, Tile]] = []
         if not work:
+            self._shadow_list = []
             return out
         # impostors, one tile each in a row
         work = self._keep_layout(work)
         W = sum(n for *_, n in work)
         fbo = self._atlas("impostors", (W, max(n for *_, n in work)), 4, True)
-        fbo.use()
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
         x0 = 0
         for dist, st, half, n in work:
-            tan = math.tan(half)
-            vp = perspective(tan, max(dist - st.radius, 0.01) * 0.95, dist + st.radius * 1.05) \
+            vp = perspective(math.tan(half), max(dist - st.radius, 0.01) * 0.95, dist + st.radius * 1.05) \
                 @ look_at(np.zeros(3), st.centre)
             rect = (x0, 0, n, n)
             x0 += n
@@ -107,28 +115,56 @@ class ImpostorPasses:
             if turned is not None:
                 out[-1] = (st, Tile(turned, rect))
                 continue
-            self._tile_keys[("impostor", rect)] = key
-            fbo.viewport = rect
-            ctx.scissor = rect
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
-            prog = self._object_program(st.obj.material, quality, fusion)
+            self._claim("impostor", rect)
             mesh = st.obj.mesh.lod(quality.impostor_faces)
             self.drawn_faces["impostor"] += len(mesh.faces)
-            if mesh.closed:  # back faces hidden anyway: cull them
-                ctx.enable(moderngl.CULL_FACE)
-                self._draw_object(prog, st, vp, mesh)
-                ctx.disable(moderngl.CULL_FACE)
-            else:  # depth first, so the costly shading runs once per pixel whatever the order
-                fbo.color_mask = (False, False, False, False)
-                self._draw_depth(st, vp, mesh)
-                fbo.color_mask = (True, True, True, True)
-                ctx.depth_func = "<="
-                self._draw_object(prog, st, vp, mesh)
-                ctx.depth_func = "<"
-        ctx.scissor = None
-        self._draw_shadows([st for st, _ in out], quality)
-        ctx.disable(moderngl.DEPTH_TEST)
+            y = 0
+            while y < n:
+                step = n - y if rows is None else max(1, min(n - y, rows("impostor", n, y)))
+                self._draw_impostor(fbo, st, vp, mesh, rect, (rect[0], y, n, step), fusion)
+                y += step
+                if y == n:
+                    self._tile_keys[("impostor", rect)] = key
+                yield "impostor", (n, y - step, step)
+        yield from self._shadow_steps([st for st, _ in out], quality)
+        self.ctx.disable(moderngl.DEPTH_TEST)
         return out
+
+    def _claim(self, kind: str, rect: tuple[int, int, int, int]) -> None:
+        """Forget what the atlas tiles of ``kind`` overlapping ``rect`` held (it is drawn over; a
+        tile of another layout or quality there would otherwise count as kept)."""
+        x, y, w, h = rect
+        for k in [k for k in self._tile_keys if k[0] == kind and len(k) == 2]:
+            a, b, c, d = k[1]
+            if a < x + w and x < a + c and b < y + h and y < b + d:
+                del self._tile_keys[k]
+
+    def _draw_impostor(self, fbo: moderngl.Framebuffer, st: ObjectGPU, vp: np.ndarray, mesh: Mesh,
+                       rect: tuple[int, int, int, int], strip: tuple[int, int, int, int],
+                       fusion: str) -> None:
+        """The rows ``strip`` of the object's impostor tile ``rect`` (sets all the GL state it uses:
+        other passes may run between two strips)."""
+        ctx = self.ctx
+        fbo.use()
+        fbo.viewport = rect
+        ctx.scissor = strip
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=strip)
+        prog = self._object_program(st.obj.material, self._quality, fusion)
+        if mesh.closed:  # back faces hidden anyway: cull them
+            ctx.enable(moderngl.CULL_FACE)
+            self._draw_object(prog, st, vp, mesh)
+            ctx.disable(moderngl.CULL_FACE)
+        else:  # depth first, so the costly shading runs once per pixel whatever the order
+            fbo.color_mask = (False, False, False, False)
+            self._draw_depth(st, vp, mesh)
+            fbo.color_mask = (True, True, True, True)
+            ctx.depth_func = "<="
+            self._draw_object(prog, st, vp, mesh)
+            ctx.depth_func = "<"
+        ctx.scissor = None
+        ctx.disable(moderngl.DEPTH_TEST)
 
     def _turned_tile(self, slot: tuple, same: tuple, vp: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
         """With ``quality.impostor_every`` > 1: the camera of the object's last impostor turned to show
@@ -214,7 +250,9 @@ class ImpostorPasses:
         prog["view_proj"].write(matrix_bytes(vp))
         self._vao(mesh, prog).render(moderngl.TRIANGLES)
 
-    def _draw_shadows(self, states: list[ObjectGPU], quality: Quality) -> None:
+    def _shadow_steps(self, states: list[ObjectGPU], quality: Quality) -> Iterator[tuple[str, None]]:
+        """Each dominant light's view of its object into a shadow-atlas tile; yields ("shadow",
+        None) after each map drawn."""
         lights = [(st, lt) for st in states for lt in st.lights][:MAX_LIGHTS]
         self._shadow_list = lights
         if not lights:
@@ -224,13 +262,15 @@ class ImpostorPasses:
         self._shadow_size = (fbo.size, s)
         self._shadow_taps = quality.shadow_taps
         prog = self.program("shadow.vert", "shadow.frag")
-        fbo.use()
         for i, (st, (pl, vp, *_)) in enumerate(lights):
             rect = (i * s, 0, s, s)
             key = (st.key, np.asarray(vp).tobytes(), tuple(np.asarray(pl.position, float)), quality, id(fbo))
             if self._tile_keys.get(("shadow", rect)) == key:
                 continue  # the same object seen from the same light camera: the map is still there
-            self._tile_keys[("shadow", rect)] = key
+            self._claim("shadow", rect)
+            fbo.use()
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            self.ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
             fbo.viewport = rect
             self.ctx.scissor = rect
             fbo.clear(1e30, 1e30, 1e30, 1e30, depth=1.0, viewport=rect)
@@ -240,7 +280,10 @@ class ImpostorPasses:
             mesh = st.obj.mesh.lod(quality.shadow_faces)
             self.drawn_faces["shadow"] += len(mesh.faces)
             self._vao(mesh, prog).render(moderngl.TRIANGLES)
-        self.ctx.scissor = None
+            self.ctx.scissor = None
+            self.ctx.disable(moderngl.DEPTH_TEST)
+            self._tile_keys[("shadow", rect)] = key
+            yield "shadow", None
 
     def composite_uniforms(self, prog: moderngl.Program, drawn: list[tuple[ObjectGPU, Tile]]) -> None:
         """The uniforms of ``composite.frag`` for the objects :meth:`prepare` drew: their impostor
@@ -349,3 +392,12 @@ def turned_camera(vp: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarra
     turn = np.eye(4)
     turn[:3, :3] = np.eye(3) + k + k @ k / max(1.0 + c, 1e-9)  # Rodrigues: b -> a
     return np.diag([dn / do, dn / do, 1.0, 1.0]) @ vp @ turn
+
+
+def run_steps(steps: Generator[object, None, object]) -> object:
+    """Run a generator of steps to its end; returns what it returns."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value

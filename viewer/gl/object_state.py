@@ -61,6 +61,14 @@ class Relight:
     quality: Quality
 
 
+def state_key(obj: SceneObject, quality: Quality) -> tuple:
+    """What an object's lighting and atlas tiles depend on: its mesh, size, place and support, and
+    the marching steps its lights were placed with."""
+    support = None if obj.support is None else np.concatenate(obj.support).round(6).tobytes()
+    return (id(obj.mesh), obj.scale, obj.position.round(6).tobytes(), obj.rotation.round(6).tobytes(),
+            support, quality.march_steps)
+
+
 def _hwc_bytes(t: torch.Tensor) -> bytes:
     """A [C, h, w] tensor as h x w x C float32 texture data."""
     return np.ascontiguousarray(t.permute(1, 2, 0).numpy(), np.float32).tobytes()
@@ -122,9 +130,7 @@ class ObjectStates:
         (relative L1); only its position-dependent parts (shadow cameras, reach) follow it.  With
         ``quality.background_lighting`` a moved object's lighting is computed on a worker thread:
         it keeps the last lighting (moved with it) until that is ready (:meth:`lighting_pending`)."""
-        support = None if obj.support is None else np.concatenate(obj.support).round(6).tobytes()
-        key = (id(obj.mesh), obj.scale, obj.position.round(6).tobytes(), obj.rotation.round(6).tobytes(),
-               support, quality.march_steps)
+        key = state_key(obj, quality)
         st = self._objects.get(id(obj))
         if st is not None:
             self._take_relight(st)
@@ -147,10 +153,17 @@ class ObjectStates:
             self._move(st, obj, key, centre, radius, quality.halo)
             st.lit_key = key
             return st
-        env, spec, irr = self._lighting_textures(lighting, st)
+        return self._install(obj, key, raw, lighting, quality.halo, st)
+
+    def _install(self, obj: SceneObject, key: tuple, raw: torch.Tensor, lighting: ObjectLighting,
+                 halo: float, old: ObjectGPU | None) -> ObjectGPU:
+        """The object's state lit by ``lighting`` (GL thread: uploads its textures, ``old``'s reused
+        when their sizes match)."""
+        centre, radius = obj.bounding_sphere()
+        env, spec, irr = self._lighting_textures(lighting, old)
         st = ObjectGPU(obj, key, lighting, env, spec, irr, lighting.ambient.numpy(),
-                        lighting.ambient_bounce.numpy(), centre, radius, raw, lighting.reach.numpy(),
-                        quality.halo, key)
+                       lighting.ambient_bounce.numpy(), centre, radius, raw, lighting.reach.numpy(),
+                       halo, key)
         st.lights = self._light_cameras(lighting, centre, radius)
         self._objects[id(obj)] = st
         return st
@@ -184,22 +197,54 @@ class ObjectStates:
         st.lights = self._light_cameras(st.lighting, centre, radius)
 
     # -- background lighting (the viewer while dragging) --------------------------------------
+    def lighting_ready(self, objects: list[SceneObject], quality: Quality) -> bool:
+        """The visible objects' lighting at ``quality``, computed on the worker thread: starts a job
+        for each object whose state is missing or outdated (for where it now is), installs the
+        finished ones (GL thread: uploads their textures).  True once every state is current, so
+        that :meth:`object_state` computes nothing (the viewer's refinement, ``viewer.refinement``).
+        The lighting is the one :meth:`object_state` computes, without a previous one to reuse."""
+        ready = True
+        for obj in objects:
+            if not obj.visible:
+                continue
+            key = state_key(obj, quality)
+            st = self._objects.get(id(obj))
+            job = self._relights.get(id(obj))
+            if st is not None and st.key == key and st.lit_key == key:
+                self._relights.pop(id(obj), None)  # a job for a place the object has left
+                continue
+            if job is not None and job.key == key and job.future.done():
+                del self._relights[id(obj)]
+                raw, lighting = job.future.result()  # (never None: no previous lighting to keep)
+                self._install(obj, key, raw, lighting, quality.halo, st)
+                continue
+            ready = False
+            if job is None or job.key != key:  # (a job for where it was finishes unseen)
+                centre, radius = obj.bounding_sphere()
+                args = (obj.support, centre, radius, quality, None)
+                self._relights[id(obj)] = Relight(self._submit(args), key, quality)
+        return ready
+
+    def _submit(self, args: tuple) -> Future:
+        """``_lighting_at(*args)`` on the worker thread, holding the field's lock."""
+        if self._relight_pool is None:
+            self._relight_pool = ThreadPoolExecutor(1, thread_name_prefix="phyir-relight")
+
+        def job() -> tuple[torch.Tensor, ObjectLighting | None]:
+            with self._field_lock:
+                return self._lighting_at(*args)
+
+        return self._relight_pool.submit(job)
+
     def _relight_later(self, st: ObjectGPU, quality: Quality) -> None:
         """Compute ``st``'s lighting where its object now is on the worker thread, unless a job for it
         is running (when that one is taken, the latest position gets the next) or the last one ended
         less than ``quality.relight_interval`` ago (the worker would take a core from the frames)."""
         if id(st.obj) in self._relights or time.monotonic() < self._relight_after:
             return
-        if self._relight_pool is None:
-            self._relight_pool = ThreadPoolExecutor(1, thread_name_prefix="phyir-relight")
         # the job gets what the UI thread may change meanwhile as it is now
         args = (st.obj.support, st.centre, st.radius, quality, (st.raw_probe, st.lighting))
-
-        def job() -> tuple[torch.Tensor, ObjectLighting | None]:
-            with self._field_lock:
-                return self._lighting_at(*args)
-
-        self._relights[id(st.obj)] = Relight(self._relight_pool.submit(job), st.key, quality)
+        self._relights[id(st.obj)] = Relight(self._submit(args), st.key, quality)
 
     def _take_relight(self, st: ObjectGPU) -> None:
         """Swap in ``st``'s finished background lighting (GL thread: uploads its textures)."""

@@ -32,7 +32,7 @@ class Quality:
     # over the layer at full resolution (composite_up.frag); exports always run at 1
     composite_scale: float = 1.0
     # a moved object's lighting on a worker thread, swapped in when ready (the viewer while dragging:
-    # viewer.insertion.InsertionPass; exports and direct calls compute it before drawing)
+    # viewer.insertion_pass.InsertionPass; exports and direct calls compute it before drawing)
     background_lighting: bool = False
     relight_interval: float = 0.0  # s from one background job's end to the next one's start
     # a moved object's impostor drawn every this many prepares; in between its last one is turned to

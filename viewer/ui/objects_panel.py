@@ -2,11 +2,13 @@
 surfaces, the ImGuizmo gizmo and export (docs/insertion.md).
 
 :class:`ObjectsPanel` owns the objects and an :class:`viewer.insertion.InsertionRenderer` whose
-:class:`viewer.insertion.InsertionPass` (``hook``) the app puts first among its renderer's overlay
+:class:`viewer.insertion_pass.InsertionPass` (``hook``) the app puts first among its renderer's overlay
 passes.  Its methods
 are what the UI calls (and what tests and scripts call): ``add``, ``drop_at``, ``duplicate``,
 ``delete``, ``set_material``, ``begin_drag``/``drag_to``/``end_drag``, ``export``.  While dragging the
-pass draws at the cheaper quality; the frame after the mouse is released redraws at full quality.
+pass draws at the cheaper quality; after the mouse is released (and after any other change) the
+full-quality picture is built a slice per frame while the draft stays on screen (``refine``,
+``viewer.refinement``), and screenshots finish it first.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from phyir.errors import PhyIRError
 from phyir.insert import placement
 from phyir.insert.objects import PRESETS, PRIMITIVES, ObjectMaterial, SceneObject, object_mesh
 from phyir.insert.views import EquirectView, PerspectiveView, write_passes
-from viewer.insertion import FUSIONS, InsertionPass, InsertionRenderer
+from viewer.insertion import FUSIONS, InsertionRenderer
+from viewer.insertion_pass import InsertionPass
 
 DEFAULT_SIZE = 0.25  # metres: primitives are unit-size, added ones start at this scale
 
@@ -33,6 +36,7 @@ class ObjectsPanel:
         self.app = app
         self.insertion = InsertionRenderer(app.ctx)
         self.hook = InsertionPass(self.insertion)
+        self.hook.refinement.finish = app.surface.finish  # drops the GIL while it waits (EGL)
         self.selected: int | None = None
         self.drop_mode = False  # clicks in the view drop the selected object (or a new sphere)
         self.new_kind = "sphere"
@@ -53,8 +57,21 @@ class ObjectsPanel:
         return self.hook.enabled and any(o.visible for o in self.objects) and self.insertion.scene is not None
 
     def refining(self) -> bool:
-        """An object's lighting is being computed in the background: frames should go on to show it."""
-        return self.insertion.lighting_pending()
+        """Frames should go on: while dragging, an object's lighting is being computed in the
+        background; else the full-quality picture is being built (``InsertionPass.refine``)."""
+        return self.insertion.lighting_pending() if self.dragging else self.hook.refining()
+
+    def refine(self, frame, size: tuple[int, int], final: bool = False) -> None:
+        """A slice of the view's full-quality picture (all of it with ``final``): once a frame,
+        before the view is drawn (``frame`` None: the view shows nothing)."""
+        if frame is None:
+            self.hook.refinement.pause(self.objects)
+        else:
+            self.hook.refine(self.app.renderer, frame, size, final)
+
+    def picture_key(self, frame, size: tuple[int, int]) -> tuple | None:
+        """What the view's picture takes from the objects (the view cache's key), None: uncachable."""
+        return self.hook.picture_key(frame, size)
 
     def scene(self):
         app = self.app
@@ -205,6 +222,7 @@ class ObjectsPanel:
 
     def release(self) -> None:
         """Free the insertion renderer's GL resources (the app has taken ``hook`` out of its passes)."""
+        self.hook.release()
         self.insertion.release()
 
     # -- imgui ----------------------------------------------------------------------------------
