@@ -163,3 +163,32 @@ def test_collapsed_normals_leave_a_levelled_depth_and_its_normals():
     out, report = inference.predict_with_report(given, model=StubModel(BentGM()), outputs=("normal",),
                                                 probes=None)
     assert not report.depth_refined and torch.equal(out.depth, given.depth)
+
+
+class BumpyNadirGM(StubGM):
+    """Exact box-room geometry but for the floor straight below the camera, its depth bumped by ±7 %
+    around the nadir (what the network gave a patterned rug there)."""
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = super().forward(x)
+        lon, lat = pano.pixel_lonlat(H, W)
+        out["depth"] = out["depth"] * (1 + 0.07 * torch.sin(5 * lon) * (lat < math.radians(-84)))
+        return out
+
+
+def test_predict_puts_the_floor_under_the_camera_on_the_floor_around_it():
+    gm = BumpyNadirGM()
+    dark_top = lamp_panorama().flip(-2)
+    out, report = inference.predict_with_report(dark_top, model=StubModel(gm), outputs=("depth", "normal"),
+                                                probes=None)
+    truth = box_room(H, W, LO, HI)[0].float().flip(-2)  # the stub's mirrored room: floor 1.3 m down
+    with torch.no_grad():
+        raw = gm(dark_top[None])["depth"][0]
+    cap = pano.pixel_lonlat(H, W)[1] < math.radians(-84)
+
+    def cap_error(d: torch.Tensor) -> float:
+        return float(((d - truth).abs() / truth)[0][cap].max())
+
+    assert report.floor_height is not None and abs(report.floor_height - HI[1]) < 0.01 * HI[1]
+    assert out.meta["predict.floor_height"] == f"{report.floor_height:.4g}"
+    assert cap_error(raw) > 0.06 and cap_error(out.depth) < 0.01
