@@ -172,3 +172,26 @@ def test_a_resized_window_starts_it_again(app):
         assert same_picture(view_pixels(app), in_one_piece(app))
     finally:
         app.surface.size = size
+
+
+def test_bench_with_objects_reports_drag_release_turn_and_exposure_frames(egl, capsys):
+    """``phyir-view --object ... --bench``'s part with objects (viewer.app.cli.bench_drag) runs to
+    the end and says what it measured: the drag, the frames after the release, the camera turning
+    and the exposure dragged with the objects in view."""
+    from phyir.insert.objects import PRESETS
+    from viewer.app import App
+    from viewer.app.cli import bench_drag
+
+    a = App((480, 300), headless=True, recent=False, render=cheap_render)
+    try:
+        a.open(box_room(64, 128))
+        assert a.wait_idle(60) and a.error is None
+        a.objects.add("sphere", PRESETS["diffuse"], 0.3, at=(46.5, 50.5))
+        bench_drag(a, frames=6)
+    finally:
+        a.close()
+    lines = capsys.readouterr().out.splitlines()
+    starts = ["dragging 1 of 1 objects", "after release:", "turning the view with the objects:",
+              "dragging the exposure with the objects:"]
+    missing = [s for s in starts if not any(ln.startswith(s) for ln in lines)]
+    assert not missing, lines

@@ -371,6 +371,26 @@ def bench_drag(app: App, frames: int = 60) -> None:
     print(f"after release: {len(after)} frames until the full-quality picture was complete, "
           f"{1000 * complete:.0f} ms after the release; the longest frame {1000 * max(after):.1f} ms, median "
           f"{_median_ms(sorted(after)):.1f} ms ({drew})")
+    _bench_moves(app, frames // 2)
+
+
+def _bench_moves(app: App, frames: int) -> None:
+    """Whole frames while the camera turns (yaw to and fro by 10 degrees) and while the exposure is
+    dragged (to and fro by 2 EV) with the objects in view: both redraw the objects every frame."""
+    view = app.views["perspective"]
+    yaw, ev = view.yaw, app.hdr.exposure
+    moves = {"turning the view": lambda t: view.update(yaw=yaw + math.radians(10) * math.sin(t)),
+             "dragging the exposure": lambda t: app.set_exposure(ev + 2 * math.sin(t))}
+    for name, move in moves.items():
+        times = []
+        for k in range(1, frames + 1):
+            move(2 * math.pi * k / frames)
+            times.append(app.frame())
+        times.sort()
+        print(f"{name} with the objects: median {_median_ms(times):.1f} ms, 95th percentile "
+              f"{1000 * times[int(0.95 * (len(times) - 1))]:.1f} ms, max {1000 * times[-1]:.1f} ms over "
+              f"{frames} frames")
+        _until_refined(app)
 
 
 def _until_refined(app: App) -> tuple[list[float], float]:
