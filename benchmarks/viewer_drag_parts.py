@@ -2,7 +2,8 @@
 (lighting, impostors, shadow maps) and its composite passes, each ended by ``ctx.finish()``, while
 the first object is dragged in the perspective view (``viewer.app.cli.bench_drag``).  Still frames
 are drawn in one piece here (``InsertionPass.progressive = False``): the frame after the release is
-the full-quality work the viewer otherwise spreads over frames (``viewer.refinement``).
+the full-quality work the viewer otherwise spreads over frames (``viewer.refinement``), and so is every
+frame of the camera turning and the exposure dragged after it (``viewer.app.cli.bench_moves``).
 
     .venv/bin/python benchmarks/viewer_drag_parts.py [SCENE] [--mesh vase.glb] [--frames 30]
 
@@ -31,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     from viewer.gl import window as surfaces
 
     surfaces.prefer_egl()
-    from viewer.app.cli import apply_args, bench_drag, parser
+    from viewer.app.cli import apply_args, bench_drag, bench_moves, parser
     from viewer.app.core import App
 
     mesh = args.mesh
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         ins.prepare = timed("prepare", ins.prepare)
         ins.draw_fullscreen = timed("composite passes", ins.draw_fullscreen)
         app.frame = counted(app.frame)
-        bench_drag(app, args.frames)
+        bench_drag(app, args.frames, moves=False)
         last = frame_no[0]
         for name, t in times.items():  # three still frames first, the full-quality one after release last
             # composite: the receivers at 1/4 (every other frame), over the layer, the objects over
@@ -85,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: median {total:.1f} ms a dragging frame ({args.frames} frames, "
                   f"{sum(map(len, frames)) / args.frames:.1f} calls a frame, the longest {longest:.1f} ms); "
                   f"{after:.0f} ms in the full-quality frame after release")
+        bench_moves(app, args.frames // 2)  # every frame a full-quality one, as before viewer.refinement
     finally:
         app.close()
     return 0

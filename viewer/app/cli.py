@@ -330,9 +330,10 @@ def _bench(app: App, args) -> int:
     return 0 if ok else 2
 
 
-def bench_drag(app: App, frames: int = 60) -> None:
+def bench_drag(app: App, frames: int = 60, moves: bool = True) -> None:
     """Whole frames while the first inserted object is dragged to and fro over its surface, in the
-    perspective view aimed at the objects (``--object ... --bench``), then the frame after release."""
+    perspective view aimed at the objects (``--object ... --bench``), then the frames after release,
+    then (``moves``) :func:`bench_moves`."""
     import numpy as np
     import torch
 
@@ -371,10 +372,11 @@ def bench_drag(app: App, frames: int = 60) -> None:
     print(f"after release: {len(after)} frames until the full-quality picture was complete, "
           f"{1000 * complete:.0f} ms after the release; the longest frame {1000 * max(after):.1f} ms, median "
           f"{_median_ms(sorted(after)):.1f} ms ({drew})")
-    _bench_moves(app, frames // 2)
+    if moves:
+        bench_moves(app, frames // 2)
 
 
-def _bench_moves(app: App, frames: int) -> None:
+def bench_moves(app: App, frames: int) -> None:
     """Whole frames while the camera turns (yaw to and fro by 10 degrees) and while the exposure is
     dragged (to and fro by 2 EV) with the objects in view: both redraw the objects every frame."""
     view = app.views["perspective"]
