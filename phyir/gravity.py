@@ -33,6 +33,12 @@ def _weight(angle: Tensor, lo_hi: tuple[float, float]) -> Tensor:
     return t * t * (3 - 2 * t)
 
 
+def _unit(v: Tensor) -> Tensor:
+    """``v [...,3,H,W]`` normalised by the square root of its sum of squares (not F.normalize: its
+    last-bit differences moved predict's exposure equivariance past the stress test's tolerance)."""
+    return v / torch.sqrt((v * v).sum(-3, keepdim=True)).clamp_min(1e-8)
+
+
 def snap_normals(normal: Tensor, level_deg: tuple[float, float] = LEVEL_DEG,
                  plumb_deg: tuple[float, float] = PLUMB_DEG) -> Tensor:
     """Unit normals ``[..., 3, H, W]`` (y up, facing the camera) pulled onto gravity's directions.
@@ -53,11 +59,10 @@ def snap_normals(normal: Tensor, level_deg: tuple[float, float] = LEVEL_DEG,
     level[..., 1:2, :, :] = torch.sign(ny)
     horiz = normal.clone()
     horiz[..., 1:2, :, :] = 0
-    horiz = horiz / torch.sqrt((horiz * horiz).sum(-3, keepdim=True)).clamp_min(1e-8)
+    horiz = _unit(horiz)
     keep = (1 - w_level - w_plumb).clamp_min(0)
     out = w_level * level + w_plumb * horiz + keep * normal
-    return out / torch.sqrt((out * out).sum(-3, keepdim=True)).clamp_min(1e-8)
-
+    return _unit(out)
 
 
 # The floor under the camera. A panorama is shot from a tripod, a monopod or a hand above the
@@ -93,11 +98,8 @@ def floor_under_camera(depth: Tensor, normal: Tensor) -> tuple[Tensor, Tensor, f
     share, tol = FLOOR_RING_PLANARITY
     if not bool(height > 0) or float(((heights - height).abs() / height).quantile(share)) > tol:
         return depth, normal, None
-    t = ((NADIR_CAP_DEG + NADIR_BLEND_DEG - from_nadir) / NADIR_BLEND_DEG).clamp(0, 1)
-    w = (t * t * (3 - 2 * t)) * (d[1] < 0)  # 1 in the cap, 0 past the blend
+    w = _weight(from_nadir, (NADIR_CAP_DEG, NADIR_CAP_DEG + NADIR_BLEND_DEG)) * (d[1] < 0)  # 1 in the cap
     plane = height / (-d[1]).clamp_min(1e-6)
     up = torch.zeros_like(normal)
     up[..., 1, :, :] = 1
-    out_n = w * up + (1 - w) * normal
-    out_n = out_n / torch.sqrt((out_n * out_n).sum(-3, keepdim=True)).clamp_min(1e-8)
-    return w * plane + (1 - w) * depth, out_n, float(height)
+    return w * plane + (1 - w) * depth, _unit(w * up + (1 - w) * normal), float(height)

@@ -396,10 +396,10 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
 
 def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
                        report: PredictReport) -> Tensor:
-    """The network's normals, or, where they have :func:`phyir.plausible_geometry.collapsed`, the
-    normals of the predicted depth (at the network's resolution, guided-upsampled)."""
+    """The network's normals, or, where they have collapsed (:func:`phyir.plausible_geometry.collapsed`),
+    the normals of the predicted depth (at the network's resolution, guided-upsampled)."""
     report.normals_away = away_share(normal)
-    if not collapsed(normal):
+    if not collapsed(report.normals_away):
         report.normals_from = "network"
         return normal
     report.normals_from = "depth"

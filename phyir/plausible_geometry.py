@@ -41,9 +41,10 @@ def away_share(normal: Tensor) -> float:
     return float((away * omega).sum() / omega.sum())
 
 
-def collapsed(normal: Tensor) -> bool:
-    """Whether more than :data:`MAX_AWAY_SHARE` of the normals ``[3,H,W]`` face away from the camera."""
-    return away_share(normal) > MAX_AWAY_SHARE
+def collapsed(away: float) -> bool:
+    """Whether a normal layer with an :func:`away_share` of ``away`` has collapsed (more than
+    :data:`MAX_AWAY_SHARE` faces away from the camera)."""
+    return away > MAX_AWAY_SHARE
 
 
 def depth_normals(depth: Tensor) -> Tensor:
@@ -68,10 +69,11 @@ def plausible_gmnet(model: Any, xn: Tensor) -> tuple[dict[str, Tensor], str]:
     the camera more is kept — all five layers, since a collapsed normal head means the whole pass is
     out of its depth."""
     gm = {k: v.float() for k, v in model.gmnet(xn).items()}
-    if "normal" not in gm or not collapsed(gm["normal"][0]):
+    away = away_share(gm["normal"][0]) if "normal" in gm else 0.0
+    if not collapsed(away):
         return gm, "upright"
     flipped = unflip({k: v.float() for k, v in model.gmnet(xn.flip(-2)).items()})
-    if away_share(flipped["normal"][0]) < away_share(gm["normal"][0]):
+    if away_share(flipped["normal"][0]) < away:
         return flipped, "mirrored"
     return gm, "upright"
 
@@ -84,7 +86,7 @@ def consistent_depth(depth: Tensor, normal: Tensor) -> tuple[Tensor, Tensor | No
     each pass levelling the floor a little more, and the normal layer is to come from it) and the
     camera height :func:`phyir.gravity.floor_under_camera` used (None: not applied)."""
     depth = depth.float()  # float32 is enough (1.8e-6 from float64 on a real room) at half the time
-    if not collapsed(normal[0]):
+    if not collapsed(away_share(normal[0])):
         snapped = snap_normals(normal.float())
         depth = refine_depth(depth, snapped, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
         return floor_under_camera(depth, snapped)

@@ -363,9 +363,7 @@ def bench_drag(app: App, frames: int = 60, moves: bool = True) -> None:
     times.sort()
     faces = sum(len(o.mesh.faces) for o in objs)
     print(f"dragging 1 of {len(objs)} objects ({faces} triangles), perspective view {app.view_size()[0]}x"
-          f"{app.view_size()[1]}: median {_median_ms(times):.1f} ms, 95th percentile "
-          f"{1000 * times[int(0.95 * (len(times) - 1))]:.1f} ms, max {1000 * times[-1]:.1f} ms over {frames} "
-          f"frames")
+          f"{app.view_size()[1]}: {_frame_stats(times)}")
     slices = app.objects.hook.refinement.slices if app.objects.hook.progressive else []
     drew = ", ".join(f"{slices.count(k)} {k}" for k in dict.fromkeys(slices))
     drew = f"{len(slices)} slices: {drew}" if slices else "in one piece"
@@ -389,9 +387,7 @@ def bench_moves(app: App, frames: int) -> None:
             move(2 * math.pi * k / frames)
             times.append(app.frame())
         times.sort()
-        print(f"{name} with the objects: median {_median_ms(times):.1f} ms, 95th percentile "
-              f"{1000 * times[int(0.95 * (len(times) - 1))]:.1f} ms, max {1000 * times[-1]:.1f} ms over "
-              f"{frames} frames")
+        print(f"{name} with the objects: {_frame_stats(times)}")
         _until_refined(app)
 
 
@@ -415,6 +411,13 @@ def _time_view_pass(app: App) -> float:
     app.renderer.render(target, app.view_rect(), spec, fb_size=(fw, fh))
     app.ctx.finish()
     return time.perf_counter() - t0
+
+
+def _frame_stats(times: list[float]) -> str:
+    """Median, 95th percentile and maximum of sorted frame ``times`` (s), and their number."""
+    p95 = 1000 * times[int(0.95 * (len(times) - 1))]
+    return (f"median {_median_ms(times):.1f} ms, 95th percentile {p95:.1f} ms, max {1000 * times[-1]:.1f} ms "
+            f"over {len(times)} frames")
 
 
 def _median_ms(times: list[float]) -> float:
