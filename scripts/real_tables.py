@@ -47,12 +47,30 @@ def lighting_table(light: dict) -> list[str]:
     return out
 
 
+def recovery_table(light: dict) -> list[str]:
+    """The LDR copy's light at the camera (no parallax: the recovery of its clipped light alone, against
+    the exact light there) beside the same at the protocol's point and the naive LDR."""
+    out = ["| panorama | diffuse rel L1: at the camera / at the point / naive LDR "
+           "| diffuse intensity ratio at the camera "
+           "| matte silver rel L1: at the camera / at the point / naive LDR |",
+           "| --- | ---: | ---: | ---: |"]
+    keys = sorted(k for k in light if k.endswith("/ldr") and not k.startswith("median"))
+    rows = [(k.split("/")[0].replace("_1k", ""), light[k]) for k in keys]
+    rows.append(("median", {m: statistics.median(light[k][m] for k in keys) for m in light[keys[0]]}))
+    for name, v in rows:
+        cells = [" / ".join(f"{v[f'{m}.{mat}.rel_l1']:.3f}" for m in ("light_at_camera", "light_at", "naive"))
+                 for mat in ("diffuse", "matte_silver")]
+        out.append(f"| {name} | {cells[0]} | {v['light_at_camera.diffuse.ratio']:.2f} | {cells[1]} |")
+    return out
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print(__doc__, file=sys.stderr)
         return 2
     doc = json.loads(open(argv[0]).read())
-    print("\n".join(geometry_table(doc["geometry"]) + [""] + lighting_table(doc["lighting"])))
+    print("\n".join(geometry_table(doc["geometry"]) + [""] + lighting_table(doc["lighting"]) + [""]
+                    + recovery_table(doc["lighting"])))
     return 0
 
 

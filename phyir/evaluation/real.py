@@ -323,7 +323,9 @@ def markdown_real(results: dict) -> str:
         short = {k: k.replace("matte_silver", "matte").replace("mirror_silver", "mirror")
                  .replace("diffuse", "diff") for k in keys}
         rows = {name: {short[k]: v for k, v in r.items()} for name, r in rows.items()}
-        parts.append(f"**Lighting at {RL.SPHERE_CENTRE} m: {m}** (spheres vs the panorama as light; "
+        # the naive LDR environment is the light at the camera too
+        where = "the light at the camera" if m in RL.AT_CAMERA | {"naive"} else "its light there"
+        parts.append(f"**Lighting at {RL.SPHERE_CENTRE} m: {m}**, {where} (spheres vs the panorama as light; "
                      "rel L1, scale-invariant rel L1, intensity ratio, colour angle in degrees; "
                      "peak_deg: brightest direction)\n\n"
                      + markdown_table(rows, [short[k] for k in keys], digits=3))

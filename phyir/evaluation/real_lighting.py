@@ -11,8 +11,11 @@ camera looks along -z, docs/conventions.md), is shaded with the RELIGHT_MATERIAL
   :class:`phyir.lighting.object_lighting.ProbeField`; ``projection``: the panorama re-read from the
   point along the predicted depth, :func:`phyir.lighting.projection.project_probes`, LNet's probe
   where the camera did not see; ``light_at``: :func:`phyir.lighting.at_point.light_at`, the same
-  projection with lamps splatted and the probe field as fallback).  A new method is one more
-  entry ``name: callable(scene, points, probe_size) -> probes [N,3,h,w]``.
+  projection with lamps splatted and the probe field as fallback; ``light_at_camera``: the same read
+  at the camera instead of the point — no parallax, so what is left is what the input lost: an LDR
+  copy's clipped light and how much of it :mod:`phyir.lighting.hdr_recovery` gave back, held against
+  the exact light there).  A new method is one more entry
+  ``name: callable(scene, points, probe_size) -> probes [N,3,h,w]``.
 * **naive**: the auto-exposed 8-bit LDR copy of the panorama used as the environment, what an artist
   without PhyIR would light the object with.
 
@@ -84,11 +87,18 @@ def light_at_point(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]
     return light_at(scene, points.reshape(-1, 3).float(), probe_size)
 
 
+def light_at_camera(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]) -> Tensor:
+    """:func:`light_at_point` at the camera for every point (see the module doc)."""
+    return light_at_point(scene, torch.zeros_like(points.reshape(-1, 3)), probe_size)
+
+
 LIGHT_METHODS: dict[str, LightMethod] = {
     "probe_field": probe_field_light,
     "projection": projection_light,
     "light_at": light_at_point,
+    "light_at_camera": light_at_camera,
 }
+AT_CAMERA = frozenset({"light_at_camera"})  # methods that read the light at the camera, not the point
 
 
 def at_size(probes: Tensor, size: tuple[int, int]) -> Tensor:
@@ -257,7 +267,7 @@ def evaluate_lighting(hdr: Tensor, ldr: Tensor, ldr_scale: float, preds: dict[st
             for i, (kin, m) in enumerate(keys):
                 if kin == inp:
                     results[inp].setdefault(m, {}).update(_prefix(mat, sphere_metrics(px[2 + i], t)))
-                    if inp == "hdr":
+                    if inp == "hdr" and m not in AT_CAMERA:  # at the camera, HDR is the truth
                         images[f"{m}/{mat}"] = to_image(px[2 + i], mask)
             naive_m = sphere_metrics(naive, truth * ldr_scale)
             results[inp].setdefault("naive", {}).update(_prefix(mat, naive_m))

@@ -199,6 +199,24 @@ def test_light_methods_are_pluggable_callables():
         assert p.shape == (1, 3, 16, 32) and bool(torch.isfinite(p).all()) and float(p.min()) >= 0
 
 
+def test_light_at_camera_reads_the_panorama_without_parallax():
+    """At the camera the light is the panorama itself (the truth of the protocol, exactly), while at
+    the protocol's point the box's ceiling lamp is nearer: the two methods differ by parallax only."""
+    s = box_scene()
+    s = s.replace(probes=pano.resize_area(s.image, 16, 32).expand(4, 8, 3, 16, 32).clone())
+    X = torch.tensor([RL.SPHERE_CENTRE])
+    at_camera = RL.LIGHT_METHODS["light_at_camera"](s, X, (16, 32))[0]
+    panorama = pano.resize_area(s.image, 16, 32)
+    assert float((at_camera - panorama).abs().sum() / panorama.sum()) < 0.03
+    at_point = RL.LIGHT_METHODS["light_at"](s, X, (16, 32))[0]
+    assert float((at_point - panorama).abs().sum() / panorama.sum()) > 0.1
+    methods = {m: RL.LIGHT_METHODS[m] for m in ("light_at", "light_at_camera")}
+    res, images = RL.evaluate_lighting(s.image, s.image, 1.0, {"hdr": s}, methods)
+    assert res["hdr"]["light_at_camera"]["diffuse.rel_l1"] < 0.02
+    assert res["hdr"]["light_at"]["diffuse.rel_l1"] > 0.05
+    assert "light_at/diffuse" in images and not any(k.startswith("light_at_camera/") for k in images)
+
+
 # ---------------------------------------------------------------------------------------------
 # the command
 
