@@ -91,6 +91,20 @@ def _per_object(values: list, n: int, flag: str, default):
     return [values[0] if len(values) == 1 else (values[k] if values else default) for k in range(n)]
 
 
+def _warn_mixed_scale(specs: list[str], scales: list[float]) -> None:
+    """One --scale for primitives and meshes alike is a radius in metres for the ones and a factor for
+    the others: almost never what was meant, so say so (it stays valid, as documented)."""
+    import warnings
+
+    from phyir.insert.objects import PRIMITIVES
+
+    kinds = {spec in PRIMITIVES for spec in specs}
+    if len(scales) == 1 and len(kinds) == 2:
+        warnings.warn(f"--scale {scales[0]:g} is given once, so every object has it: the primitives' radius "
+                      f"in metres and the meshes' size factor; give one --scale per --object to size them "
+                      f"apart", stacklevel=2)
+
+
 def make_objects(args: argparse.Namespace, scene) -> list:
     """The inserted objects, placed as ``phyir insert`` places them."""
     from phyir.errors import InputError
@@ -102,6 +116,7 @@ def make_objects(args: argparse.Namespace, scene) -> list:
         raise InputError("--object", f"each --object needs one --at or --position: {n} objects, "
                                      f"{len(places)} placements")
     objects = []
+    _warn_mixed_scale(args.object, args.scale)
     scales = _per_object(args.scale, n, "--scale", None)
     materials = _per_object(args.material, n, "--material", "diffuse")
     for spec, (flag, values), scale, material in zip(args.object, places, scales, materials):

@@ -157,6 +157,29 @@ def test_the_command_exports_inserted_objects(tmp_path, room):
     assert os.path.exists(str(tmp_path / "out_env.exr"))
 
 
+def test_one_scale_for_a_mesh_and_a_primitive_is_warned_about(tmp_path, room):
+    import warnings
+
+    import trimesh
+
+    scene = str(tmp_path / "room.exr")
+    save_scene(room, scene)
+    mesh = str(tmp_path / "box.glb")
+    trimesh.creation.box((0.3, 0.3, 0.3)).export(mesh)
+    both = ["--object", "sphere", "--position", "0.5,-1.0,-2.5",
+            "--object", mesh, "--position=-0.5,-1.0,-2.5"]
+    with pytest.warns(UserWarning, match="give one --scale per --object"):
+        assert run_export([scene, "--gltf", str(tmp_path / "a.glb"), "--grid", "16x32", *both,
+                           "--scale", "0.2"]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one scale per object, or primitives only: nothing to say
+        assert run_export([scene, "--gltf", str(tmp_path / "b.glb"), "--grid", "16x32", *both,
+                           "--scale", "0.2", "--scale", "1"]) == 0
+        assert run_export([scene, "--gltf", str(tmp_path / "c.glb"), "--grid", "16x32", "--object", "sphere",
+                           "--position", "0.5,-1.0,-2.5", "--object", "cube", "--position=-0.5,-1.0,-2.5",
+                           "--scale", "0.2"]) == 0
+
+
 @pytest.mark.parametrize("extra, flag", [
     (["--grid", "64"], "--grid"), (["--grid", "1x8"], "--grid"), (["--grid", "4096x8192"], "--grid"),
     (["--object", "sphere"], "--object"),
