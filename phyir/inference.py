@@ -8,9 +8,10 @@ returns probes in the input's radiometric units:
    wanted layer is missing from the input, or when LNet needs GMNet's layers as its inputs;
 2. LNet predicts a probe grid;
 3. with ``lighting="projection"`` each probe is re-read from the panorama itself where the camera saw
-   the surface its texels look at (:mod:`phyir.lighting.projection`), LNet's probe filling in the rest.
-   The default (:data:`DEFAULT_LIGHTING`) is LNet alone: with the shipped weights it measured better
-   on the synthetic test split (README, "The model").
+   the surface its texels look at (:mod:`phyir.lighting.projection`), LNet's probe filling in the rest;
+   ``"fused"``, the default (:data:`DEFAULT_LIGHTING`), combines that with LNet's probe
+   (:mod:`phyir.lighting.fusion`): with the shipped weights it measured best on the synthetic split and
+   the real panoramas (README, "The model").
 
 Layers the input already carries are used, never recomputed; ``outputs`` asks for a subset.  What
 ran, what was reused and how long each stage took are recorded in ``scene.meta`` (keys ``predict.*``).
@@ -41,11 +42,13 @@ from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
 GM_LAYERS = ("depth", "normal", "albedo", "roughness", "metallic")
-LIGHTING = ("projection", "lnet")
-# `phyir eval --data <s128v2> --split test` (37 scenes), shipped lite weights: probe log-MSE lnet 0.0602
-# vs projection 0.0623, relighting lnet better for all three spheres; projection wins only from
-# ground-truth depth (0.0303), so the predicted depth's error is what holds it back
-DEFAULT_LIGHTING = "lnet"
+LIGHTING = ("projection", "lnet", "fused")
+PROJECTED = ("projection", "fused")  # the lighting methods that project the panorama
+# `phyir eval --data data/h128 --split train` (24 held-out rooms), shipped lite weights: probe log-MSE
+# fused 0.0420, lnet 0.0516, projection 0.0543; relighting (diffuse / matte / mirror sphere) fused 0.0133 /
+# 0.0178 / 0.0360, lnet 0.0179 / 0.0251 / 0.0472 (phyir.lighting.fusion); on the real panoramas' protocol
+# the fused grid lights the diffuse sphere 0.31 off the panorama, LNet's 0.38 (README, "Real panoramas")
+DEFAULT_LIGHTING = "fused"
 DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training resolution
 # every layer comes back at the input's size: ~140 bytes per input pixel at the peak
 # (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
@@ -378,7 +381,7 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     H, W = scene.size
     guide_lo = _guide(net.xn[0].float())
     guide_hi = _guide(net.image * net.scale)
-    projection = plan.need_probes and plan.lighting == "projection"
+    projection = plan.need_probes and plan.lighting in PROJECTED
     geo_only = {"depth", "normal"} - plan.have - plan.want if projection else set()
     geo: dict[str, Tensor] = {}
     for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
@@ -414,22 +417,32 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     """The probes to return: a grid [Hp,Wp,3,h,w] or, for ``probes="points"``, [N,1,3,h,w]."""
     assert net.lnet_grid is not None
     lnet_grid = net.lnet_grid.cpu()
-    if plan.lighting == "projection":  # (DepthSurface works in exposure-normalised units itself)
-        proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
-                               normal=geo.get("normal", out.normal))
+    if plan.lighting not in PROJECTED:
+        return lnet_grid if opts.probes == "grid" else lnet_probes_at(lnet_grid, _points(opts))[:, None]
+    # (DepthSurface works in exposure-normalised units itself)
+    proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
+                           normal=geo.get("normal", out.normal))
     if opts.probes == "grid":
-        if plan.lighting != "projection":
-            return lnet_grid
         from phyir.lighting.projection import projected_probe_grid
 
-        return projected_probe_grid(proj_scene, lnet_grid)
-    pts = opts.points.reshape(-1, 3).float().cpu()
-    fb = lnet_probes_at(lnet_grid, pts)
-    if plan.lighting == "projection":
+        lnet, projected = lnet_grid, projected_probe_grid(proj_scene, lnet_grid)
+    else:
         from phyir.lighting.projection import project_probes
 
-        fb = project_probes(proj_scene, pts, tuple(fb.shape[-2:]), fb)[0]
-    return fb[:, None]
+        lnet = lnet_probes_at(lnet_grid, _points(opts))
+        projected = project_probes(proj_scene, _points(opts), tuple(lnet.shape[-2:]), lnet)[0]
+    probes = projected if plan.lighting == "projection" else _fused(lnet, projected)
+    return probes if opts.probes == "grid" else probes[:, None]
+
+
+def _points(opts: PredictOptions) -> Tensor:
+    return opts.points.reshape(-1, 3).float().cpu()
+
+
+def _fused(lnet: Tensor, projected: Tensor) -> Tensor:
+    from phyir.lighting.fusion import fuse_probes
+
+    return fuse_probes(lnet, projected)
 
 
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
@@ -484,7 +497,8 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, options: PredictOpti
     ``points [N,3]`` only, returned as ``scene.probes [N,1,3,h,w]`` with ``meta["probe_layout"] =
     "points"``) or None (no probes).
     ``lighting``: ``"projection"`` (probes re-read from the panorama where the camera saw, LNet
-    elsewhere) or ``"lnet"`` (LNet only); default :data:`DEFAULT_LIGHTING`.
+    elsewhere), ``"lnet"`` (LNet only) or ``"fused"`` (the geometric mean of the two,
+    :mod:`phyir.lighting.fusion`); default :data:`DEFAULT_LIGHTING`.
     ``net_size``: network resolution (H, W) (default: the weights' training resolution, at most the
     input's).  ``refine_depth``: pull near-level and near-plumb normals onto gravity's directions and
     make the predicted depth follow them — the network's normals where plausible, else the depth's own

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from phyir.commands import options
+from phyir.commands import predict as predict_cmd
 
 HELP = "evaluate predictions (or the model on a synthetic split) with the paper's metrics"
 
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "invariances and lighting at a point (phyir.evaluation.real)")
     parser.add_argument("--sheet", metavar="PNG", type=options.path,
                         help="--real: write a contact sheet of the rooms")
-    parser.add_argument("--lighting", choices=("projection", "lnet"),
+    parser.add_argument("--lighting", choices=predict_cmd.LIGHTING,
                         help="--real: predict's lighting method for the probe grid (default: predict's)")
 
 

@@ -8,6 +8,8 @@ from pathlib import Path
 
 from phyir.commands import options
 
+LIGHTING = ("projection", "lnet", "fused")  # phyir.inference.LIGHTING (tested equal; torch-free import)
+
 HELP = "predict depth, normals, materials and light probes of panoramas (writes scene .exr files)"
 
 IMAGE_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
@@ -24,9 +26,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outputs", metavar="LIST",
                         help="comma-separated subset of depth,normal,albedo,roughness,metallic,probes "
                              "(default: all); layers the input already has are kept, not recomputed")
-    parser.add_argument("--lighting", choices=("projection", "lnet"), default=None,
-                        help="LNet's probes (lnet, default: better with the shipped weights), or probes "
-                             "re-read from the panorama where the camera saw, LNet elsewhere (projection)")
+    parser.add_argument("--lighting", choices=LIGHTING, default=None,
+                        help="LNet's probes (lnet), probes re-read from the panorama where the camera saw, "
+                             "LNet elsewhere (projection), or the geometric mean of both (fused, default: "
+                             "the best on the synthetic split)")
     parser.add_argument("--net-size", metavar="HxW", help="network resolution (default: the weights')")
     parser.add_argument("--ldr", action="store_true", help="treat inputs as LDR (no exposure normalisation)")
     parser.add_argument("--half", action="store_true", help="write float16 EXR channels")

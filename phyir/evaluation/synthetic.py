@@ -9,6 +9,7 @@
   - ``lnet``: LNet's grid, bilinear at the cell's predicted 3D position,
   - ``projection``: :mod:`phyir.lighting.projection` from the predicted depth, LNet where the camera did
     not see,
+  - ``fused``: the geometric mean of the two (:mod:`phyir.lighting.fusion`),
   - ``projection_gt_geometry``: the same from the ground-truth depth (the projection itself, without
     the depth network's error),
   - ``constant``: a trivial baseline (depth 3 m, normals facing the camera, base colour 0.5,
@@ -162,19 +163,20 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
                    device=None, limit: int | None = None, probes_per_scene: int = 256, relight: int = 16,
                    spp: int = 64, seed: int = 0,
                    log: Callable[[str], None] | None = None) -> dict[str, dict[str, float]]:
-    """Metrics per method (``model/lnet``, ``model/projection``, ``projection_gt_geometry``,
+    """Metrics per method (``model/lnet``, ``model/projection``, ``model/fused``, ``projection_gt_geometry``,
     ``constant``, ``dataset_means``) averaged over the scenes of ``split``; see the module doc.
     ``model/lnet`` also has ``predict_seconds``: the mean time of :func:`phyir.predict` per scene
     (LNet lighting)."""
     from phyir.inference import lnet_probes_at, predict
     from phyir.io import load_scene
     from phyir.learn.datasets import split_files
+    from phyir.lighting.fusion import fuse_probes
     from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
 
     root = Path(root)
     files = split_files(root, split, limit)
     means = dataset_means(root, "train") if split != "train" and read_manifest_has(root, "train") else None
-    methods = ["model/lnet", "model/projection", "projection_gt_geometry", "constant"]
+    methods = ["model/lnet", "model/projection", "model/fused", "projection_gt_geometry", "constant"]
     meters = {k: M.MetricMeter() for k in methods + (["dataset_means"] if means is not None else [])}
     seconds = []
     for i, path in enumerate(files):
@@ -198,6 +200,7 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
         size = tuple(gt.probe_size)
         lnet = _resample_probes(lnet_probes_at(pred.probes, pred_pos), size)
         proj = project_probes(DepthSurface.from_scene(pred), pred_pos, size, lnet)[0]
+        fused = fuse_probes(lnet, proj)
         gt_geo = PanoScene(image=gt.image, depth=gt.depth, normal=gt.normal)
         proj_gt = project_probes(DepthSurface.from_scene(gt_geo), gt_pos,
                                  size, _resample_probes(lnet_probes_at(pred.probes, gt_pos), size))[0]
@@ -206,6 +209,7 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
         rows = {
             "model/lnet": pix | lighting_metrics(lnet, gt_p, gt_pos, **kw),
             "model/projection": pix | lighting_metrics(proj, gt_p, gt_pos, **kw),
+            "model/fused": pix | lighting_metrics(fused, gt_p, gt_pos, **kw),
             "projection_gt_geometry": lighting_metrics(proj_gt, gt_p, gt_pos, **kw),
             "constant": pixel_metrics(base, gt) | lighting_metrics(
                 base.probes.reshape(Hp * Wp, 3, *size)[cells], gt_p, gt_pos, **kw),

@@ -77,12 +77,27 @@ def test_net_size_and_guided_upsampling(model, image):
 
 def test_exposure_scales_probes_only(model, image):
     k = 8.0
-    for lighting in ("lnet", "projection"):
+    for lighting in I.LIGHTING:
         a = phyir.predict(image, model=model, lighting=lighting, net_size=(64, 128))
         b = phyir.predict(image * k, model=model, lighting=lighting, net_size=(64, 128))
         for name in I.GM_LAYERS:
             torch.testing.assert_close(getattr(b, name), getattr(a, name), rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(b.probes, k * a.probes, rtol=1e-3, atol=1e-6)
+
+
+def test_the_default_grid_fuses_lnet_and_projection(model, image):
+    from phyir.commands.predict import LIGHTING
+    from phyir.lighting.fusion import fuse_probes
+
+    assert set(LIGHTING) == set(I.LIGHTING) and I.DEFAULT_LIGHTING == "fused"
+    grids = {m: phyir.predict(image, model=model, lighting=m, net_size=(64, 128)).probes
+             for m in ("lnet", "projection", None)}
+    assert not torch.allclose(grids["lnet"], grids["projection"])
+    torch.testing.assert_close(grids[None], fuse_probes(grids["lnet"], grids["projection"]))
+    pts = torch.tensor([[0.0, -0.2, -0.8], [0.5, 0.3, 1.0]])
+    at = {m: phyir.predict(image, model=model, lighting=m, net_size=(64, 128), probes="points",
+                           points=pts).probes for m in ("lnet", "projection", "fused")}
+    torch.testing.assert_close(at["fused"], fuse_probes(at["lnet"], at["projection"]))
 
 
 def test_supplied_layers_are_not_recomputed(model, image, monkeypatch):
