@@ -21,9 +21,10 @@ from torch import Tensor
 
 from phyir import pano
 
-# LNet's share, chosen on 40 training rooms of the wider generator (`phyir synth --seed 20000`), not
-# the held-out ones: the geometric mean alone is flat around it (probe log-MSE 0.0554 at 0.4, 0.0558
-# at 0.5, 0.0575 at 0.6; LNet alone 0.0751, the projection alone 0.0716), so equal shares
+# LNet's share, chosen on 40 training rooms of the wider generator (`phyir synth --seed 20000`), not the
+# held-out ones (`python benchmarks/probe_fusion.py data/n128 train 40`): probe log-MSE 0.0582 / 0.0580 /
+# 0.0590 at 0.4 / 0.5 / 0.6, mirror-sphere relighting 0.0537 / 0.0535 / 0.0544, the other two spheres
+# within 5 % of each other (LNet alone: log-MSE 0.0751, the projection alone 0.0716)
 FUSE_WEIGHT = 0.5
 FLOOR = 1e-6  # floor of the logarithm relative to the mean radiance (black stays black, not -inf)
 

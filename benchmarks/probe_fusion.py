@@ -1,0 +1,81 @@
+"""The weight of phyir.lighting.fusion: LNet's probes, the projected ones and their fusion at several
+weights, against path-traced probes, on rooms of a synthetic split.
+
+For each scene, predict (LNet's grid) is run once; at 256 random probe cells (the cells and metrics of
+``phyir eval --data``: ``phyir.evaluation.synthetic.lighting_metrics``, 16 relit probes at 64 spp)
+the probes are LNet's grid at the cell's predicted position, the projection from the predicted depth
+(LNet where unseen), their plain geometric mean and ``fuse_probes`` (geometric-mean shape, mean
+energy) at each weight. Prints the mean of each metric per variant.
+
+    python benchmarks/probe_fusion.py data/n128 train 40      # where FUSE_WEIGHT was chosen
+    python benchmarks/probe_fusion.py data/h128 train 30      # held out (24 rooms in its train split)
+
+(data/n128: ``phyir synth --out data/n128 --count 160 --seed 20000 --size 128x256 --probe-grid 16x32
+--spp 8``; data/h128: the same with ``--count 30 --seed 7000``.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+
+import torch
+
+from phyir.evaluation.synthetic import _resample_probes, lighting_metrics
+from phyir.inference import lnet_probes_at, predict
+from phyir.io import load_scene
+from phyir.learn.datasets import split_files
+from phyir.lighting.fusion import FLOOR, fuse_probes
+from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
+
+WEIGHTS = (0.3, 0.4, 0.5, 0.6, 0.7)
+
+
+def geometric(a: torch.Tensor, b: torch.Tensor, w: float) -> torch.Tensor:
+    floor = FLOOR * float(torch.maximum(a.mean(), b.mean()))
+    log = w * torch.log(a.clamp_min(0) + floor) + (1 - w) * torch.log(b.clamp_min(0) + floor)
+    return torch.exp(log) - floor
+
+
+def variants(lnet: torch.Tensor, proj: torch.Tensor) -> dict[str, torch.Tensor]:
+    out = {"lnet": lnet, "projection": proj}
+    for w in WEIGHTS:
+        out[f"geometric {w}"] = geometric(lnet, proj, w)
+        out[f"fused {w}"] = fuse_probes(lnet, proj, w)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("data")
+    ap.add_argument("split", nargs="?", default="train")
+    ap.add_argument("limit", nargs="?", type=int, default=None)
+    args = ap.parse_args()
+    rows: dict[str, list[dict[str, float]]] = {}
+    files = split_files(args.data, args.split, args.limit)
+    for i, path in enumerate(files):
+        gt = load_scene(path)
+        pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
+                                  probes=None, masks={}), lighting="lnet")
+        Hp, Wp = gt.probe_grid
+        cells = torch.randperm(Hp * Wp, generator=torch.Generator().manual_seed(i))[:256]
+        truth = gt.probes.reshape(Hp * Wp, 3, *gt.probe_size)[cells]
+        truth_pos = probe_positions(gt.depth, gt.normal, (Hp, Wp)).reshape(-1, 3)[cells]
+        pos = probe_positions(pred.depth, pred.normal, (Hp, Wp)).reshape(-1, 3)[cells]
+        size = tuple(gt.probe_size)
+        lnet = _resample_probes(lnet_probes_at(pred.probes, pos), size)
+        proj = project_probes(DepthSurface.from_scene(pred), pos, size, lnet)[0]
+        for name, p in variants(lnet, proj).items():
+            metrics = lighting_metrics(p, truth, truth_pos, relight=16, spp=64, seed=0)
+            rows.setdefault(name, []).append(metrics)
+        print(f"[{i + 1}/{len(files)}] {path.name}", flush=True)
+    keys = list(next(iter(rows.values()))[0])
+    print(f"\n{len(files)} rooms of {args.data} ({args.split}): means\n")
+    print("| probes | " + " | ".join(keys) + " |")
+    print("| --- |" + " ---: |" * len(keys))
+    for name, r in rows.items():
+        print(f"| {name} | " + " | ".join(f"{statistics.mean(x[k] for x in r):.5f}" for k in keys) + " |")
+
+
+if __name__ == "__main__":
+    main()
