@@ -21,12 +21,11 @@ import statistics
 
 import torch
 
-from phyir.evaluation.synthetic import _resample_probes, lighting_metrics
-from phyir.inference import lnet_probes_at, predict
+from phyir.evaluation.synthetic import lighting_metrics, probe_cells
+from phyir.inference import predict
 from phyir.io import load_scene
 from phyir.learn.datasets import split_files
 from phyir.lighting.fusion import FLOOR, fuse_probes
-from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
 
 WEIGHTS = (0.3, 0.4, 0.5, 0.6, 0.7)
 
@@ -57,16 +56,9 @@ def main() -> None:
         gt = load_scene(path)
         pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
                                   probes=None, masks={}), lighting="lnet")
-        Hp, Wp = gt.probe_grid
-        cells = torch.randperm(Hp * Wp, generator=torch.Generator().manual_seed(i))[:256]
-        truth = gt.probes.reshape(Hp * Wp, 3, *gt.probe_size)[cells]
-        truth_pos = probe_positions(gt.depth, gt.normal, (Hp, Wp)).reshape(-1, 3)[cells]
-        pos = probe_positions(pred.depth, pred.normal, (Hp, Wp)).reshape(-1, 3)[cells]
-        size = tuple(gt.probe_size)
-        lnet = _resample_probes(lnet_probes_at(pred.probes, pos), size)
-        proj = project_probes(DepthSurface.from_scene(pred), pos, size, lnet)[0]
-        for name, p in variants(lnet, proj).items():
-            metrics = lighting_metrics(p, truth, truth_pos, relight=16, spp=64, seed=0)
+        pc = probe_cells(pred, gt, i)  # the cells, truth and estimates of `phyir eval --data`
+        for name, p in variants(pc.lnet, pc.projected).items():
+            metrics = lighting_metrics(p, pc.truth, pc.truth_pos, relight=16, spp=64, seed=0)
             rows.setdefault(name, []).append(metrics)
         print(f"[{i + 1}/{len(files)}] {path.name}", flush=True)
     keys = list(next(iter(rows.values()))[0])

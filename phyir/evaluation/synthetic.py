@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -171,7 +172,7 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
     from phyir.io import load_scene
     from phyir.learn.datasets import split_files
     from phyir.lighting.fusion import fuse_probes
-    from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
+    from phyir.lighting.projection import DepthSurface, project_probes
 
     root = Path(root)
     files = split_files(root, split, limit)
@@ -190,17 +191,11 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
                        weights=weights, model=model, device=device, lighting="lnet")
         seconds.append(time.perf_counter() - t0)
         pix = pixel_metrics(pred, gt)
-        # the probe cells evaluated (same for all methods), seeded per scene
-        Hp, Wp = gt.probe_grid
-        g = torch.Generator().manual_seed(seed * 1_000_003 + i)
-        cells = torch.randperm(Hp * Wp, generator=g)[:probes_per_scene]
-        gt_p = gt.probes.reshape(Hp * Wp, 3, *gt.probe_size)[cells]
-        gt_pos = probe_positions(gt.depth, gt.normal, (Hp, Wp)).reshape(-1, 3)[cells]
-        pred_pos = probe_positions(pred.depth, pred.normal, (Hp, Wp)).reshape(-1, 3)[cells]
-        size = tuple(gt.probe_size)
-        lnet = _resample_probes(lnet_probes_at(pred.probes, pred_pos), size)
-        proj = project_probes(DepthSurface.from_scene(pred), pred_pos, size, lnet)[0]
+        pc = probe_cells(pred, gt, i, seed=seed, count=probes_per_scene)
+        cells, gt_p, gt_pos, lnet, proj = pc.cells, pc.truth, pc.truth_pos, pc.lnet, pc.projected
         fused = fuse_probes(lnet, proj)
+        Hp, Wp = gt.probe_grid
+        size = tuple(gt.probe_size)
         gt_geo = PanoScene(image=gt.image, depth=gt.depth, normal=gt.normal)
         proj_gt = project_probes(DepthSurface.from_scene(gt_geo), gt_pos,
                                  size, _resample_probes(lnet_probes_at(pred.probes, gt_pos), size))[0]
@@ -229,6 +224,36 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
         out[MARGIN_KEY] = margins(meters["model/lnet"], meters["dataset_means"])
     out["model/lnet"]["predict_seconds"] = sum(seconds) / len(seconds)
     return out
+
+
+@dataclass
+class ProbeCells:
+    """The probe cells one scene is evaluated at (the same for every method): their indices, the
+    path-traced probes and their positions, and the model's two estimates there."""
+
+    cells: Tensor  # [N] indices into the flattened probe grid
+    truth: Tensor  # [N,3,h,w]
+    truth_pos: Tensor  # [N,3] the ground-truth probe positions
+    lnet: Tensor  # [N,3,h,w] LNet's grid at the cell's predicted position
+    projected: Tensor  # [N,3,h,w] the panorama projected from there, LNet where unseen
+
+
+def probe_cells(pred: PanoScene, gt: PanoScene, index: int, *, seed: int = 0, count: int = 256) -> ProbeCells:
+    """:class:`ProbeCells` of scene ``index`` of a split: ``count`` random cells seeded per scene, ``pred``
+    a prediction with LNet's grid."""
+    from phyir.inference import lnet_probes_at
+    from phyir.lighting.projection import DepthSurface, probe_positions, project_probes
+
+    Hp, Wp = gt.probe_grid
+    g = torch.Generator().manual_seed(seed * 1_000_003 + index)
+    cells = torch.randperm(Hp * Wp, generator=g)[:count]
+    truth = gt.probes.reshape(Hp * Wp, 3, *gt.probe_size)[cells]
+    truth_pos = probe_positions(gt.depth, gt.normal, (Hp, Wp)).reshape(-1, 3)[cells]
+    pos = probe_positions(pred.depth, pred.normal, (Hp, Wp)).reshape(-1, 3)[cells]
+    size = tuple(gt.probe_size)
+    lnet = _resample_probes(lnet_probes_at(pred.probes, pos), size)
+    projected = project_probes(DepthSurface.from_scene(pred), pos, size, lnet)[0]
+    return ProbeCells(cells, truth, truth_pos, lnet, projected)
 
 
 MARGIN_KEY = "margin/model/lnet-vs-dataset_means"
