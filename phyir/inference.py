@@ -37,6 +37,7 @@ from torch import Tensor
 from phyir import pano
 from phyir.errors import InputError, PhyIRError
 from phyir.filters import guided_upsample
+from phyir.lighting.fusion import fuse_probes
 from phyir.plausible_geometry import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
 from phyir.scene import PanoScene
 
@@ -431,18 +432,12 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
 
         lnet = lnet_probes_at(lnet_grid, _points(opts))
         projected = project_probes(proj_scene, _points(opts), tuple(lnet.shape[-2:]), lnet)[0]
-    probes = projected if plan.lighting == "projection" else _fused(lnet, projected)
+    probes = projected if plan.lighting == "projection" else fuse_probes(lnet, projected)
     return probes if opts.probes == "grid" else probes[:, None]
 
 
 def _points(opts: PredictOptions) -> Tensor:
     return opts.points.reshape(-1, 3).float().cpu()
-
-
-def _fused(lnet: Tensor, projected: Tensor) -> Tensor:
-    from phyir.lighting.fusion import fuse_probes
-
-    return fuse_probes(lnet, projected)
 
 
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
