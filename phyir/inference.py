@@ -46,8 +46,8 @@ GM_LAYERS = ("depth", "normal", "albedo", "roughness", "metallic")
 LIGHTING = ("projection", "lnet", "fused")
 PROJECTED = ("projection", "fused")  # the lighting methods that project the panorama
 # `phyir eval --data data/h128 --split train` (24 held-out rooms), shipped lite weights: probe log-MSE
-# fused 0.0420, lnet 0.0516, projection 0.0543; relighting (diffuse / matte / mirror sphere) fused 0.0133 /
-# 0.0178 / 0.0360, lnet 0.0179 / 0.0251 / 0.0472 (phyir.lighting.fusion); on the real panoramas' protocol
+# fused 0.0418, lnet 0.0516, projection 0.0543; relighting (diffuse / matte / mirror sphere) fused 0.0134 /
+# 0.0178 / 0.0359, lnet 0.0179 / 0.0251 / 0.0472 (phyir.lighting.fusion); on the real panoramas' protocol
 # the fused grid lights the diffuse sphere 0.31 off the panorama, LNet's 0.38 (README, "Real panoramas")
 DEFAULT_LIGHTING = "fused"
 DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training resolution
