@@ -11,6 +11,22 @@ import torch
 from phyir.scene import PanoScene
 
 
+def box_room_app(size: tuple[int, int] = (900, 520)):
+    """A headless viewer App (cheap re-render) with the 64x128 test box room open and idle; closed
+    again if opening fails.  Call viewer.gl.window.prefer_egl() before (at the test module's top)."""
+    from support.scenes import box_room
+    from viewer.app import App
+
+    app = App(size, headless=True, recent=False, render=cheap_render)
+    try:
+        app.open(box_room(64, 128))
+        assert app.wait_idle(60) and app.error is None
+    except BaseException:
+        app.close()
+        raise
+    return app
+
+
 def cheap_render(scene: PanoScene) -> dict[str, torch.Tensor]:
     """Stands in for phyir.shading.render.render_scene where its cost (seconds on 2 cores) buys nothing."""
     diffuse = scene.albedo * scene.image.mean(0, keepdim=True)

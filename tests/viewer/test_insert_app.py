@@ -10,8 +10,8 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from support.scenes import FLOOR_Y, box_room  # noqa: E402
-from support.viewer import cheap_render  # noqa: E402
+from support.scenes import FLOOR_Y  # noqa: E402
+from support.viewer import box_room_app  # noqa: E402
 
 from phyir import pano  # noqa: E402
 
@@ -20,11 +20,7 @@ pytestmark = pytest.mark.gl
 
 @pytest.fixture(scope="module")
 def app(egl):
-    from viewer.app import App
-
-    a = App((900, 520), headless=True, recent=False, render=cheap_render)
-    a.open(box_room(64, 128))
-    assert a.wait_idle(60) and a.error is None
+    a = box_room_app()
     yield a
     a.close()
 

@@ -13,8 +13,7 @@ from viewer.gl import window as _surfaces
 
 _surfaces.prefer_egl()  # imgui's renderer (PyOpenGL) must talk EGL: before OpenGL is imported
 
-from support.scenes import box_room  # noqa: E402
-from support.viewer import cheap_render  # noqa: E402
+from support.viewer import box_room_app  # noqa: E402
 
 from phyir import pano  # noqa: E402
 
@@ -24,11 +23,8 @@ pytestmark = pytest.mark.gl
 @pytest.fixture(scope="module")
 def app(egl):
     from phyir.insert.objects import PRESETS
-    from viewer.app import App
 
-    a = App((900, 520), headless=True, recent=False, render=cheap_render)
-    a.open(box_room(64, 128))
-    assert a.wait_idle(60) and a.error is None
+    a = box_room_app()
     a.objects.add("sphere", PRESETS["matte-silver"], 0.3, at=(40.5, 50.5))
     a.objects.add("cube", PRESETS["diffuse"], 0.2, at=(52.5, 50.5))
     H, W = a.size
@@ -179,13 +175,10 @@ def test_bench_with_objects_reports_drag_release_turn_and_exposure_frames(egl, c
     the end and says what it measured: the drag, the frames after the release, the camera turning
     and the exposure dragged with the objects in view."""
     from phyir.insert.objects import PRESETS
-    from viewer.app import App
     from viewer.app.cli import bench_drag
 
-    a = App((480, 300), headless=True, recent=False, render=cheap_render)
+    a = box_room_app((480, 300))
     try:
-        a.open(box_room(64, 128))
-        assert a.wait_idle(60) and a.error is None
         a.objects.add("sphere", PRESETS["diffuse"], 0.3, at=(46.5, 50.5))
         bench_drag(a, frames=6)
     finally:
