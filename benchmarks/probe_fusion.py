@@ -25,21 +25,15 @@ from phyir.evaluation.synthetic import lighting_metrics, probe_cells
 from phyir.inference import predict
 from phyir.io import load_scene
 from phyir.learn.datasets import split_files
-from phyir.lighting.fusion import FLOOR, fuse_probes
+from phyir.lighting.fusion import fuse_probes, geometric_mean
 
 WEIGHTS = (0.3, 0.4, 0.5, 0.6, 0.7)
-
-
-def geometric(a: torch.Tensor, b: torch.Tensor, w: float) -> torch.Tensor:
-    floor = FLOOR * float(torch.maximum(a.mean(), b.mean()))
-    log = w * torch.log(a.clamp_min(0) + floor) + (1 - w) * torch.log(b.clamp_min(0) + floor)
-    return torch.exp(log) - floor
 
 
 def variants(lnet: torch.Tensor, proj: torch.Tensor) -> dict[str, torch.Tensor]:
     out = {"lnet": lnet, "projection": proj}
     for w in WEIGHTS:
-        out[f"geometric {w}"] = geometric(lnet, proj, w)
+        out[f"geometric {w}"] = geometric_mean(lnet, proj, w)
         out[f"fused {w}"] = fuse_probes(lnet, proj, w)
     return out
 

@@ -418,26 +418,23 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     """The probes to return: a grid [Hp,Wp,3,h,w] or, for ``probes="points"``, [N,1,3,h,w]."""
     assert net.lnet_grid is not None
     lnet_grid = net.lnet_grid.cpu()
+    pts = None if opts.probes == "grid" else opts.points.reshape(-1, 3).float().cpu()
     if plan.lighting not in PROJECTED:
-        return lnet_grid if opts.probes == "grid" else lnet_probes_at(lnet_grid, _points(opts))[:, None]
+        return lnet_grid if pts is None else lnet_probes_at(lnet_grid, pts)[:, None]
     # (DepthSurface works in exposure-normalised units itself)
     proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
                            normal=geo.get("normal", out.normal))
-    if opts.probes == "grid":
+    if pts is None:
         from phyir.lighting.projection import projected_probe_grid
 
         lnet, projected = lnet_grid, projected_probe_grid(proj_scene, lnet_grid)
     else:
         from phyir.lighting.projection import project_probes
 
-        lnet = lnet_probes_at(lnet_grid, _points(opts))
-        projected = project_probes(proj_scene, _points(opts), tuple(lnet.shape[-2:]), lnet)[0]
+        lnet = lnet_probes_at(lnet_grid, pts)
+        projected = project_probes(proj_scene, pts, tuple(lnet.shape[-2:]), lnet)[0]
     probes = projected if plan.lighting == "projection" else fuse_probes(lnet, projected)
-    return probes if opts.probes == "grid" else probes[:, None]
-
-
-def _points(opts: PredictOptions) -> Tensor:
-    return opts.points.reshape(-1, 3).float().cpu()
+    return probes if pts is None else probes[:, None]
 
 
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:

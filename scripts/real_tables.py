@@ -30,15 +30,19 @@ def geometry_table(geo: dict) -> list[str]:
     return out
 
 
+def room_rows(light: dict, inp: str) -> list[tuple[str, dict]]:
+    """(room, metrics) of every panorama's ``inp`` ("hdr"/"ldr") lighting row, then their median."""
+    keys = sorted(k for k in light if k.endswith("/" + inp) and not k.startswith("median"))
+    rows = [(k.split("/")[0].replace("_1k", ""), light[k]) for k in keys]
+    return rows + [("median", {m: statistics.median(light[k][m] for k in keys) for m in light[keys[0]]})]
+
+
 def lighting_table(light: dict) -> list[str]:
     out = ["| panorama | input | diffuse rel L1: ours / probe grid / naive LDR | diffuse intensity ratio "
            "| diffuse colour error | matte silver rel L1: ours / naive LDR |",
            "| --- | --- | ---: | ---: | ---: | ---: |"]
     for inp in ("hdr", "ldr"):
-        keys = sorted(k for k in light if k.endswith("/" + inp) and not k.startswith("median"))
-        rows = [(k.split("/")[0].replace("_1k", ""), light[k]) for k in keys]
-        rows.append(("median", {m: statistics.median(light[k][m] for k in keys) for m in light[keys[0]]}))
-        for name, v in rows:
+        for name, v in room_rows(light, inp):
             out.append(f"| {name} | {inp} | {v['light_at.diffuse.rel_l1']:.3f} "
                        f"/ {v['probe_field.diffuse.rel_l1']:.3f} / {v['naive.diffuse.rel_l1']:.3f} "
                        f"| {v['light_at.diffuse.ratio']:.2f} "
@@ -54,10 +58,7 @@ def recovery_table(light: dict) -> list[str]:
            "| diffuse intensity ratio at the camera "
            "| matte silver rel L1: at the camera / at the point / naive LDR |",
            "| --- | ---: | ---: | ---: |"]
-    keys = sorted(k for k in light if k.endswith("/ldr") and not k.startswith("median"))
-    rows = [(k.split("/")[0].replace("_1k", ""), light[k]) for k in keys]
-    rows.append(("median", {m: statistics.median(light[k][m] for k in keys) for m in light[keys[0]]}))
-    for name, v in rows:
+    for name, v in room_rows(light, "ldr"):
         cells = [" / ".join(f"{v[f'{m}.{mat}.rel_l1']:.3f}" for m in ("light_at_camera", "light_at", "naive"))
                  for mat in ("diffuse", "matte_silver")]
         out.append(f"| {name} | {cells[0]} | {v['light_at_camera.diffuse.ratio']:.2f} | {cells[1]} |")

@@ -30,6 +30,15 @@ FUSE_WEIGHT = 0.5
 FLOOR = 1e-6  # floor of the logarithm relative to the mean radiance (black stays black, not -inf)
 
 
+def geometric_mean(a: Tensor, b: Tensor, weight: float = FUSE_WEIGHT) -> Tensor:
+    """``a^weight * b^(1-weight)`` of non-negative tensors, with the logarithm's floor relative to their
+    mean radiance (so it scales with the input and black stays black)."""
+    a, b = a.clamp_min(0), b.clamp_min(0)
+    floor = FLOOR * float(torch.maximum(a.mean(), b.mean()).clamp_min(1e-30))
+    log = weight * torch.log(a + floor) + (1 - weight) * torch.log(b + floor)
+    return (torch.exp(log) - floor).clamp_min(0)
+
+
 def fuse_probes(lnet: Tensor, projected: Tensor, weight: float = FUSE_WEIGHT) -> Tensor:
     """Probes ``[..., 3, h, w]`` with the shape and colour of ``lnet^weight * projected^(1-weight)`` and,
     per probe, the radiant energy (luminance, solid-angle weighted) of ``weight*lnet + (1-weight)*projected``.
@@ -39,9 +48,7 @@ def fuse_probes(lnet: Tensor, projected: Tensor, weight: float = FUSE_WEIGHT) ->
     if lnet.shape != projected.shape:
         raise ValueError(f"fuse_probes: shapes {tuple(lnet.shape)} and {tuple(projected.shape)} differ")
     a, b = lnet.clamp_min(0), projected.clamp_min(0)
-    floor = FLOOR * float(torch.maximum(a.mean(), b.mean()).clamp_min(1e-30))  # scales with the input
-    shape = torch.exp(weight * torch.log(a + floor) + (1 - weight) * torch.log(b + floor)) - floor
-    shape = shape.clamp_min(0)
+    shape = geometric_mean(a, b, weight)
     omega = pano.solid_angles(*a.shape[-2:], a.device, a.dtype)
 
     def energy(x: Tensor) -> Tensor:
