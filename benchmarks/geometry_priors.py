@@ -42,6 +42,7 @@ from torch import Tensor
 from phyir import metrics as M
 from phyir import pano
 from phyir.color import exposure_scale, luminance
+from phyir.evaluation.real import plausibility
 from phyir.evaluation.synthetic import surface_mask
 from phyir.inference import load_cached_model
 from phyir.io import load_scene
@@ -159,10 +160,10 @@ def manhattan(normal: Tensor, yaw: float) -> Tensor:
 
 
 def camera_height(depth: Tensor, normal: Tensor) -> float:
-    H, W = depth.shape[-2:]
-    d = pano.directions(H, W)
-    ring = (d[1] < -math.sin(math.radians(70))) & (normal[0, 1] > 0.94)
-    return float((-(depth[0, 0] * d[1]))[ring].median()) if int(ring.sum()) > 10 else CAMERA_HEIGHT
+    """The camera's height above the floor by ``phyir eval --real``'s definition (the median of -y over the
+    nadir cap; :func:`phyir.evaluation.real.plausibility`) of ``depth [1,1,H,W]``, ``normal [1,3,H,W]``."""
+    scene = PanoScene(image=torch.zeros(3, *depth.shape[-2:]), depth=depth[0], normal=normal[0])
+    return plausibility(scene)["camera_height"]
 
 
 def variants(model, x: Tensor, gt: PanoScene) -> dict[str, tuple[Tensor, Tensor]]:
