@@ -9,13 +9,16 @@ Points are drawn in the free space the camera sees, along random camera rays (so
 |latitude| < 60°, lamps and windows left out) between 15 % and 85 % of the way to the surface and at
 least :data:`MARGIN` from it; the first point is the real protocol's sphere centre when it is free.
 
-Methods (probes ``[N,3,h,w]`` at the truth's size), each ``name: callable(pred, gt, points, size)``:
+The room is predicted twice, with ``phyir predict``'s default lighting (the fused probe grid, what users
+get) and with ``lighting="lnet"`` (LNet's grid alone, the baseline): the :class:`Predictions`.
+Methods (probes ``[N,3,h,w]`` at the truth's size), each ``name: callable(preds, gt, points, size)``:
 
 * ``light_at``: :func:`phyir.lighting.at_point.light_at` on the predicted scene (what inserted
-  objects get: the panorama projected from the point, LNet's probes where the camera did not see);
-* ``lnet``: the predicted LNet probe grid interpolated in 3D (:class:`ProbeField`; LNet alone);
+  objects get: the panorama projected from the point, the fused grid where the camera did not see);
+* ``fused``: the probe grid ``phyir predict`` writes (fused) interpolated in 3D (:class:`ProbeField`);
+* ``lnet``: the predicted LNet probe grid interpolated in 3D (LNet alone);
 * ``projection``: the panorama projected through the predicted depth, LNet's grid probe where unseen;
-* ``light_at_gt_geometry``: ``light_at`` through the true depth and normals (LNet's probes where
+* ``light_at_gt_geometry``: ``light_at`` through the true depth and normals (the fused grid where
   unseen): what is left is the projection's own error;
 * ``panorama``: the camera's panorama as distant light.  This is the real protocol's *truth*, so its
   error here is what that protocol cannot see: the parallax between the camera and the point.
@@ -33,6 +36,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -48,32 +52,54 @@ FRACTION = (0.15, 0.85)  # where along the camera ray (share of the depth) a poi
 TRUTH_SIZE = (32, 64)  # probe texels of the traced truth (5.6 degrees)
 SPHERE_MATERIALS = ("diffuse", "matte_silver")  # the mirror needs the truth's full resolution
 
-PointMethod = Callable[[PanoScene, PanoScene, Tensor, tuple[int, int]], Tensor]
 
 
-def _on_prediction(method: RL.LightMethod) -> PointMethod:
+@dataclass(frozen=True)
+class Predictions:
+    """One room predicted with ``phyir predict``'s default lighting and with LNet's grid alone."""
+
+    default: PanoScene  # what users get (the fused probe grid)
+    lnet: PanoScene  # the same geometry, LNet's probe grid
+
+
+PointMethod = Callable[[Predictions, PanoScene, Tensor, tuple[int, int]], Tensor]
+
+
+def _on_prediction(method: RL.LightMethod, which: str = "default") -> PointMethod:
     """A real-protocol light method (:data:`phyir.evaluation.real_lighting.LIGHT_METHODS`) as a point
-    method: it sees the predicted scene only."""
-    return lambda pred, gt, pts, size: method(pred, pts, size)
+    method: it sees the predicted scene ``which`` (a :class:`Predictions` field) only."""
+    return lambda preds, gt, pts, size: method(getattr(preds, which), pts, size)
 
 
-def _light_at_gt_geometry(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
-    geo = pred.replace(depth=gt.depth, normal=gt.normal)
+def _light_at_gt_geometry(preds: Predictions, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
+    geo = preds.default.replace(depth=gt.depth, normal=gt.normal)
     return RL.light_at_point(geo, pts, size)
 
 
-def _panorama(pred: PanoScene, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
+def _panorama(preds: Predictions, gt: PanoScene, pts: Tensor, size: tuple[int, int]) -> Tensor:
     env = pano.resize_area(gt.image.float().clamp_min(0), *size)
     return env[None].expand(len(pts), -1, -1, -1)
 
 
 POINT_METHODS: dict[str, PointMethod] = {
     "light_at": _on_prediction(RL.light_at_point),
-    "lnet": _on_prediction(RL.probe_field_light),
-    "projection": _on_prediction(RL.projection_light),
+    "fused": _on_prediction(RL.probe_field_light),
+    "lnet": _on_prediction(RL.probe_field_light, "lnet"),
+    "projection": _on_prediction(RL.projection_light, "lnet"),
     "light_at_gt_geometry": _light_at_gt_geometry,
     "panorama": _panorama,
 }
+
+
+def predict_both(gt: PanoScene, **predict_kwargs) -> Predictions:
+    """:class:`Predictions` of the room ``gt`` from its image alone (every other layer dropped)."""
+    from phyir.inference import predict
+
+    image_only = gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
+                            probes=None, masks={})
+    default = predict(image_only, **predict_kwargs)
+    lnet = predict(image_only, lighting="lnet", **predict_kwargs)
+    return Predictions(default, lnet)
 
 
 def free_points(gt: PanoScene, count: int, seed: int = 0, margin: float = MARGIN) -> Tensor:
@@ -119,10 +145,10 @@ def sphere_errors(probes: Tensor, truth: Tensor, points: Tensor) -> dict[str, fl
     return {k: s / len(points) for k, s in sums.items()}
 
 
-def method_probes(pred: PanoScene, gt: PanoScene, points: Tensor, size: tuple[int, int],
+def method_probes(preds: Predictions, gt: PanoScene, points: Tensor, size: tuple[int, int],
                   methods: dict[str, PointMethod] | None = None) -> dict[str, Tensor]:
     """``{method: probes [N,3,h,w]}`` at ``points``, at ``size``, non-negative."""
-    return {name: RL.at_size(fn(pred, gt, points, size).float(), size).clamp_min(0)
+    return {name: RL.at_size(fn(preds, gt, points, size).float(), size).clamp_min(0)
             for name, fn in (POINT_METHODS if methods is None else methods).items()}
 
 
@@ -135,20 +161,12 @@ def point_metrics(probes: dict[str, Tensor], truth: Tensor, points: Tensor, *, s
             | sphere_errors(p, truth, points) for name, p in probes.items()}
 
 
-def evaluate_points(pred: PanoScene, gt: PanoScene, points: Tensor, truth: Tensor, *, spp: int = 64,
-                    methods: dict[str, PointMethod] | None = None) -> dict[str, dict[str, float]]:
-    """``{method: metrics}`` of the light at ``points`` against the traced ``truth [N,3,h,w]``."""
-    probes = method_probes(pred, gt, points, tuple(truth.shape[-2:]), methods)
-    return point_metrics(probes, truth, points, spp=spp)
-
-
 def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count: int = 8, weights=None,
                           model=None, device=None, limit: int | None = None, spp: int = 64, seed: int = 0,
                           log: Callable[[str], None] | None = None) -> dict[str, dict[str, float]]:
     """``{"points/<method>": metrics}``: the model on ``split``'s scenes, ``count`` free points each;
     ``"protocol/<method>"``: the same at the real protocol's sphere centre alone (where it is free), and
     ``"protocol_median/<method>"`` its medians over the scenes."""
-    from phyir.inference import predict
     from phyir.io import load_scene
     from phyir.learn.datasets import split_files
     from phyir.synth.dataset import trace_probes_at
@@ -158,14 +176,12 @@ def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count
     for i, path in enumerate(files):
         t0 = time.perf_counter()
         gt = load_scene(path)
-        pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                                  probes=None, masks={}),
-                       weights=weights, model=model, device=device, lighting="lnet")
+        preds = predict_both(gt, weights=weights, model=model, device=device)
         points = free_points(gt, count, seed * 1_000_003 + i)
         if not len(points):
             continue
         truth = trace_probes_at(gt, points, TRUTH_SIZE, seed=seed)
-        probes = method_probes(pred, gt, points, TRUTH_SIZE)
+        probes = method_probes(preds, gt, points, TRUTH_SIZE)
         rows = {f"points/{k}": r for k, r in point_metrics(probes, truth, points, spp=spp).items()}
         if torch.equal(points[0], torch.tensor(RL.SPHERE_CENTRE)):  # the real protocol's point alone
             first = {k: p[:1] for k, p in probes.items()}
@@ -177,7 +193,7 @@ def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count
             log(f"[{i + 1}/{len(files)}] {path.name}: {len(points)} points, "
                 f"{time.perf_counter() - t0:.1f} s, "
                 "diffuse rel L1 " + ", ".join(f"{m} {rows['points/' + m]['diffuse.rel_l1']:.3f}"
-                                              for m in ("light_at", "lnet", "panorama")))
+                                              for m in ("light_at", "fused", "lnet", "panorama")))
     out = {k: m.result() for k, m in meters.items()}
     # the real protocol states its bars as medians over rooms: the same here
     out |= {k.replace("protocol/", "protocol_median/"): _medians(m) for k, m in meters.items()

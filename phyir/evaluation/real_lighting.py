@@ -69,9 +69,9 @@ def probe_field_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, i
 
 
 def projection_light(scene: PanoScene, points: Tensor, probe_size: tuple[int, int]) -> Tensor:
-    """The panorama projected from each point along the predicted depth, LNet's grid probe where
-    unseen (what ``phyir predict --lighting projection`` writes; :func:`light_at_point` falls back
-    to the interpolated probe field instead)."""
+    """The panorama projected from each point along the predicted depth, the scene's grid probe where
+    unseen (LNet's for ``phyir predict --lighting lnet``, as ``--lighting projection`` writes;
+    :func:`light_at_point` falls back to the interpolated probe field instead)."""
     from phyir.inference import lnet_probes_at
     from phyir.lighting.projection import project_probes
 

@@ -88,3 +88,23 @@ def test_eval_points_command(tmp_path, capsys):
     assert "Spheres lit by the light at free points" in out
     one = [k for k in r if k.startswith("protocol/")]  # the protocol point is free in one scene or not
     assert [k.replace("protocol/", "protocol_median/") for k in one] == [k for k in r if "median" in k]
+
+
+def test_the_fused_and_lnet_rows_read_their_own_grids(room):
+    """``fused`` is the grid ``phyir predict`` writes by default, ``lnet`` LNet's alone: one geometry,
+    two grids, each method interpolates its own (the grid users get is ``light_at``'s fallback)."""
+    from phyir.evaluation.real_lighting import probe_field_light
+    from phyir.lighting.fusion import fuse_probes
+    from phyir.lighting.projection import projected_probe_grid
+
+    preds = P.predict_both(room)
+    assert torch.equal(preds.default.depth, preds.lnet.depth)
+    projected = projected_probe_grid(preds.lnet, preds.lnet.probes)
+    torch.testing.assert_close(preds.default.probes, fuse_probes(preds.lnet.probes, projected),
+                               rtol=1e-4, atol=1e-6)
+    pts = P.free_points(room, 2, seed=1)
+    for name, scene in (("fused", preds.default), ("lnet", preds.lnet)):
+        got = P.POINT_METHODS[name](preds, room, pts, (8, 16))
+        torch.testing.assert_close(got, probe_field_light(scene, pts, (8, 16)))
+    assert not torch.allclose(P.POINT_METHODS["fused"](preds, room, pts, (8, 16)),
+                              P.POINT_METHODS["lnet"](preds, room, pts, (8, 16)))
