@@ -86,7 +86,8 @@ def test_predict_extreme_inputs_are_finite_and_in_range(model, kind):
     if kind in ("black", "constant", "dark 1e-6", "bright 1e6", "near float32 max"):
         # the projected part of a probe re-reads the (uniform) panorama: ~ the input's radiance
         assert float(s.probes.max()) <= 1.001 * float(x.max()) + 1e-30
-    assert_valid_prediction(phyir.predict(x, model=model, hdr=not ldr, lighting="lnet"))  # the default
+    assert_valid_prediction(phyir.predict(x, model=model, hdr=not ldr, lighting="lnet"))
+    assert_valid_prediction(phyir.predict(x, model=model, hdr=not ldr))  # the default: the two fused
 
 
 def test_predict_is_exposure_equivariant_over_eight_decades(model):
