@@ -73,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     point = tuple(float(c) for c in a.point.split(","))
     if len(point) != 3 or not all(math.isfinite(c) for c in point):
         ap.error(f"--point {a.point!r}: expected three numbers x,y,z")
+    if math.hypot(*point) < 0.05:
+        ap.error(f"--point {a.point!r}: the camera would be inside the sphere; give a point >= 5 cm away")
     scene = load_scene(a.scene)
     probes = LightAtPoint(scene, SIZE).probes_at(torch.tensor([point, (0.0, 0.0, 0.0)]))
     k = sphere_kernel(point)
