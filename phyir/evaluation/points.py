@@ -53,7 +53,6 @@ TRUTH_SIZE = (32, 64)  # probe texels of the traced truth (5.6 degrees)
 SPHERE_MATERIALS = ("diffuse", "matte_silver")  # the mirror needs the truth's full resolution
 
 
-
 @dataclass(frozen=True)
 class Predictions:
     """One room predicted with ``phyir predict``'s default lighting and with LNet's grid alone."""
