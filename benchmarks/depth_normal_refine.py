@@ -19,7 +19,7 @@ import phyir.inference as inference
 from phyir import metrics as M
 from phyir import pano, plausible_geometry
 from phyir.depth_normal import refine_depth
-from phyir.evaluation.synthetic import surface_mask
+from phyir.evaluation.synthetic import model_input, surface_mask
 from phyir.io import load_scene
 
 KEYS = ("depth.abs_rel", "depth.rmse", "depth.delta1", "normal.mean")
@@ -29,9 +29,7 @@ def raw_predictions(files: list[Path]) -> list[tuple]:
     out = []
     for f in files:
         gt = load_scene(f)
-        inp = gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                         probes=None, masks={})
-        p = inference.predict(inp, outputs=("depth", "normal"), probes=None, refine_depth=False)
+        p = inference.predict(model_input(gt), outputs=("depth", "normal"), probes=None, refine_depth=False)
         out.append((gt, p.depth, p.normal))
     return out
 

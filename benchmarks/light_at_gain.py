@@ -50,11 +50,6 @@ def region_masks(size: tuple[int, int] = SIZE) -> dict[str, torch.Tensor]:
     return out
 
 
-def camera_height(scene) -> float:
-    """The camera's height above the predicted floor (``phyir eval --real``'s definition)."""
-    return plausibility(scene)["camera_height"]
-
-
 def ceiling_height(scene) -> float:
     """Median height above the camera (m) of the predicted points above ``ZENITH_LAT`` (where
     ``phyir eval --real`` expects the ceiling)."""
@@ -82,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     total = float(at_camera.sum())
     print(f"{a.scene}: the diffuse sphere at {point} is {float(at_point.sum()) / total:.2f}x as bright "
           "as under the light at the camera")
-    print(f"the predicted room: floor {camera_height(scene):.2f} m below the camera, ceiling "
+    print(f"the predicted room: floor {plausibility(scene)['camera_height']:.2f} m below the camera, ceiling "
           f"{ceiling_height(scene):.2f} m above (medians below and above the camera)")
     print("| directions | share at the camera | share at the point |")
     print("| --- | ---: | ---: |")

@@ -20,10 +20,7 @@ import statistics
 import sys
 from pathlib import Path
 
-import torch
-
 from phyir.evaluation import points as P
-from phyir.evaluation import real_lighting as RL
 from phyir.io import load_scene
 from phyir.synth.dataset import trace_probes_at
 
@@ -38,7 +35,7 @@ def room_row(gt, seed: int) -> dict:
     row = {"depth_ratio": float((preds.default.depth / gt.depth.clamp_min(1e-6)).median())}
     for m, p in probes.items():
         row[f"points/{m}"] = P.sphere_errors(p, truth, pts)["diffuse.rel_l1"]
-        if torch.equal(pts[0], torch.tensor(RL.SPHERE_CENTRE)):
+        if P.starts_at_protocol_point(pts):
             row[f"protocol/{m}"] = P.sphere_errors(p[:1], truth[:1], pts[:1])["diffuse.rel_l1"]
     return row
 

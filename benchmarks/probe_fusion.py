@@ -21,7 +21,7 @@ import statistics
 
 import torch
 
-from phyir.evaluation.synthetic import lighting_metrics, probe_cells
+from phyir.evaluation.synthetic import lighting_metrics, model_input, probe_cells
 from phyir.inference import predict
 from phyir.io import load_scene
 from phyir.learn.datasets import split_files
@@ -48,8 +48,7 @@ def main() -> None:
     files = split_files(args.data, args.split, args.limit)
     for i, path in enumerate(files):
         gt = load_scene(path)
-        pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                                  probes=None, masks={}), lighting="lnet")
+        pred = predict(model_input(gt), lighting="lnet")
         pc = probe_cells(pred, gt, i)  # the cells, truth and estimates of `phyir eval --data`
         for name, p in variants(pc.lnet, pc.projected).items():
             metrics = lighting_metrics(p, pc.truth, pc.truth_pos, relight=16, spp=64, seed=0)

@@ -122,12 +122,11 @@ def bench_config(model, weights: str | None, net_size: tuple[int, int], scenes: 
                  cfg: dict, device: str) -> dict:
     """Time and (with trained weights) errors of one model at one network resolution."""
     from phyir.bench.measure import time_calls
-    from phyir.evaluation.synthetic import pixel_metrics
+    from phyir.evaluation.synthetic import model_input, pixel_metrics
     from phyir.inference import predict
 
     def run(gt: PanoScene) -> PanoScene:
-        inp = PanoScene(image=gt.image, meta=dict(gt.meta))
-        return predict(inp, model=model, device=device, lighting="lnet", net_size=net_size)
+        return predict(model_input(gt), model=model, device=device, lighting="lnet", net_size=net_size)
 
     preds = [run(gt) for gt in scenes]  # also the warm-up
     times, cpu = [], []

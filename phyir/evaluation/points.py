@@ -92,10 +92,10 @@ POINT_METHODS: dict[str, PointMethod] = {
 
 def predict_both(gt: PanoScene, **predict_kwargs) -> Predictions:
     """:class:`Predictions` of the room ``gt`` from its image alone (every other layer dropped)."""
+    from phyir.evaluation.synthetic import model_input
     from phyir.inference import predict
 
-    image_only = gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                            probes=None, masks={})
+    image_only = model_input(gt)
     default = predict(image_only, **predict_kwargs)
     lnet = predict(image_only, lighting="lnet", **predict_kwargs)
     return Predictions(default, lnet)
@@ -126,6 +126,11 @@ def free_points(gt: PanoScene, count: int, seed: int = 0, margin: float = MARGIN
         f = FRACTION[0] + (FRACTION[1] - FRACTION[0]) * torch.rand(len(idx), generator=g)
         points += list((d[:, idx] * (depth[idx] * f)).T)
     return torch.stack(points[:count]) if points else torch.zeros(0, 3)
+
+
+def starts_at_protocol_point(points: Tensor) -> bool:
+    """Whether :func:`free_points` put the real protocol's sphere centre first (it does where it is free)."""
+    return len(points) > 0 and torch.equal(points[0], torch.tensor(RL.SPHERE_CENTRE))
 
 
 def sphere_errors(probes: Tensor, truth: Tensor, points: Tensor) -> dict[str, float]:
@@ -182,7 +187,7 @@ def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count
         truth = trace_probes_at(gt, points, TRUTH_SIZE, seed=seed)
         probes = method_probes(preds, gt, points, TRUTH_SIZE)
         rows = {f"points/{k}": r for k, r in point_metrics(probes, truth, points, spp=spp).items()}
-        if torch.equal(points[0], torch.tensor(RL.SPHERE_CENTRE)):  # the real protocol's point alone
+        if starts_at_protocol_point(points):  # the real protocol's point alone
             first = {k: p[:1] for k, p in probes.items()}
             one = point_metrics(first, truth[:1], points[:1], spp=spp)
             rows |= {f"protocol/{k}": r for k, r in one.items()}

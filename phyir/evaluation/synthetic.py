@@ -45,6 +45,11 @@ def surface_mask(gt: PanoScene) -> Tensor | None:
     return None if em is None else (em < 0.5).float()
 
 
+def model_input(gt: PanoScene) -> PanoScene:
+    """The room ``gt`` as the model is given it: its image and meta, every other layer dropped."""
+    return PanoScene(image=gt.image, meta=dict(gt.meta))
+
+
 def pixel_metrics(pred: PanoScene, gt: PanoScene) -> dict[str, float]:
     """Depth, normal and material metrics (keys ``depth.*``, ``normal.*``, ``albedo_mse``...)."""
     if pred.size != gt.size:
@@ -186,9 +191,7 @@ def evaluate_model(root: str | os.PathLike, split: str = "test", *, weights=None
         if gt.probes is None:
             raise ValueError(f"{path}: ground truth has no probes")
         t0 = time.perf_counter()
-        pred = predict(gt.replace(depth=None, normal=None, albedo=None, roughness=None, metallic=None,
-                                  probes=None, masks={}),
-                       weights=weights, model=model, device=device, lighting="lnet")
+        pred = predict(model_input(gt), weights=weights, model=model, device=device, lighting="lnet")
         seconds.append(time.perf_counter() - t0)
         pix = pixel_metrics(pred, gt)
         pc = probe_cells(pred, gt, i, seed=seed, count=probes_per_scene)
