@@ -111,12 +111,12 @@ def normals_from_depth(depth: Tensor) -> Tensor:
     def row(k):
         return p[..., (torch.arange(H, device=p.device) + k).clamp(0, H - 1), :]
     du = _straighter_side(col(1) - p, col(2) - col(1), p - col(-1), col(-1) - col(-2))
-    # rows: steps past a pole don't exist; each missing step outweighs any real bend
+    # rows: steps past a pole don't exist; the side missing fewer of them is used
     i = torch.arange(H, device=p.device, dtype=p.dtype)[:, None]
     missing_down = (i >= H - 2).to(p.dtype) + (i >= H - 1).to(p.dtype)
     missing_up = (i <= 1).to(p.dtype) + (i <= 0).to(p.dtype)
     dv = _straighter_side(row(1) - p, row(2) - row(1), p - row(-1), row(-1) - row(-2),
-                          missing_down * 1e30, missing_up * 1e30)
+                          missing_down, missing_up)
     n = torch.cross(dv, du, dim=-3)
     n = n / _norm(n).clamp_min(1e-12)
     # face the camera: the normal points against the viewing ray
@@ -124,12 +124,32 @@ def normals_from_depth(depth: Tensor) -> Tensor:
     return torch.where(flip, -n, n)
 
 
-def _straighter_side(a1: Tensor, a2: Tensor, b1: Tensor, b2: Tensor, penalty_a: Tensor | float = 0.0,
-                     penalty_b: Tensor | float = 0.0) -> Tensor:
-    """The step a1 (followed by a2) or b1 (followed by b2) whose continuation bends least."""
-    cost_a = _norm(a2 - a1) / (_norm(a1) + 1e-12) + penalty_a
-    cost_b = _norm(b2 - b1) / (_norm(b1) + 1e-12) + penalty_b
-    return torch.where(cost_a <= cost_b, a1, b1)
+SIDE_SHARPNESS = 8.0  # normals_from_depth: how sharply the straighter side wins (4: a box room's
+# creases smear 1.3 % of pixels past 1 degree, 8: 0.5 %)
+SIDE_TIE = 1e-6  # bend (relative to the step) below which two sides count as equally straight
+
+
+def _straighter_side(a1: Tensor, a2: Tensor, b1: Tensor, b2: Tensor, missing_a: Tensor | float = 0.0,
+                     missing_b: Tensor | float = 0.0) -> Tensor:
+    """The step a1 (followed by a2) or b1 (followed by b2) whose continuation bends least, blended
+    smoothly: weights 1 / (1 + (cost / other cost)^SIDE_SHARPNESS), so at a crease (one side bending
+    ten times more) the other side keeps a weight of 1e-8, while near a tie the two sides average
+    instead of one flipping to the other on the last bit of the input (a hard choice made the
+    depth-only fallback of predict move 5 % under a 1e-7 change of the input). ``missing_*`` count
+    the steps a side lacks (past a pole): the side missing fewer wins outright."""
+    # squared bends (no square root, whose gradient is infinite where a side is exactly straight)
+    bend_a = _sq(a2 - a1) / (_sq(a1) + 1e-24) + SIDE_TIE ** 2
+    bend_b = _sq(b2 - b1) / (_sq(b1) + 1e-24) + SIDE_TIE ** 2
+    # clamped so the power stays finite in float32 (and gradients too): 1e4 ** 8 gives a weight of 1e-32
+    ratio = (bend_a / bend_b).clamp(1e-8, 1e8)
+    w_a = 1 / (1 + ratio.pow(SIDE_SHARPNESS / 2))
+    ma, mb = torch.as_tensor(missing_a, dtype=w_a.dtype), torch.as_tensor(missing_b, dtype=w_a.dtype)
+    w_a = torch.where(ma < mb, torch.ones_like(w_a), torch.where(ma > mb, torch.zeros_like(w_a), w_a))
+    return w_a * a1 + (1 - w_a) * b1
+
+
+def _sq(x: Tensor) -> Tensor:
+    return (x * x).sum(-3, keepdim=True)
 
 
 def _norm(x: Tensor) -> Tensor:

@@ -30,6 +30,7 @@ matches :func:`lookup_table`.
 from __future__ import annotations
 
 import math
+import os
 from functools import lru_cache
 
 import torch
@@ -50,7 +51,10 @@ SUPERSAMPLE = 4
 # BF16_MIN_MACS multiply-adds: the prefiltered render 1.5-1.75x faster, same errors to four digits
 # (docs/rendering.md, "Mixed precision"); "float32" keeps the probes' dtype.  The SH rows stay in the
 # probes' dtype: high bands are small differences of large sums, which bfloat16 inputs would swamp.
-LEVEL_PRECISION = "auto"
+# "bfloat16" takes it whatever the CPU (emulated where not native: slower, the same numbers). The
+# environment variable PHYIR_LEVEL_PRECISION sets it for a process (the test suite is run with each).
+LEVEL_PRECISION = os.environ.get("PHYIR_LEVEL_PRECISION", "auto")
+LEVEL_PRECISIONS = ("auto", "float32", "bfloat16")
 BF16_MIN_MACS = 1 << 26
 # a level is halved while its texels stay below LEVEL_TEXELS_PER_ALPHA lobe widths (alpha radians);
 # measured on the benchmark scenes: 2 costs +0.2% specular error over full-resolution levels
@@ -386,10 +390,11 @@ def cpu_has_native_bf16() -> bool:
 def level_matmul_dtype(env: Tensor, macs: int) -> torch.dtype:
     """dtype of the level maps' matmul for probes ``env`` and a product of ``macs`` multiply-adds
     (see :data:`LEVEL_PRECISION`)."""
-    if LEVEL_PRECISION not in ("auto", "float32"):
-        raise ValueError(f"LEVEL_PRECISION must be 'auto' or 'float32', got {LEVEL_PRECISION!r}")
-    if (LEVEL_PRECISION == "auto" and env.dtype == torch.float32 and env.device.type == "cpu"
-            and macs >= BF16_MIN_MACS and cpu_has_native_bf16()):
+    if LEVEL_PRECISION not in LEVEL_PRECISIONS:
+        raise ValueError(f"LEVEL_PRECISION (PHYIR_LEVEL_PRECISION) must be one of {LEVEL_PRECISIONS}, "
+                         f"got {LEVEL_PRECISION!r}")
+    native = LEVEL_PRECISION == "bfloat16" or (LEVEL_PRECISION == "auto" and cpu_has_native_bf16())
+    if native and env.dtype == torch.float32 and env.device.type == "cpu" and macs >= BF16_MIN_MACS:
         return torch.bfloat16
     return env.dtype
 

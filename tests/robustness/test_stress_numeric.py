@@ -90,16 +90,34 @@ def test_predict_extreme_inputs_are_finite_and_in_range(model, kind):
     assert_valid_prediction(phyir.predict(x, model=model, hdr=not ldr))  # the default: the two fused
 
 
+def _rel(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a - b).abs() / b.abs()
+
+
 def test_predict_is_exposure_equivariant_over_eight_decades(model):
     """Geometry and materials don't depend on the exposure; probes scale with it (within the
-    normalisation's range SCALE_RANGE)."""
+    normalisation's range SCALE_RANGE).
+
+    The tolerances follow from float32: x * k normalised differs from x normalised by <= 1.2e-7
+    relative (one rounding of the product), whatever the CPU. The networks carry that through
+    (measured <= 1.7e-7 on their depth). Predict's geometry post-processing amplifies it: this
+    random-weight model's normals collapse, so the depth-only fallback runs four passes of
+    normals-from-depth and a Poisson solve, measured at most 8e-4 at a crease pixel (median 5e-6)
+    across AVX512 / AVX2 / generic kernels, one or two threads and both level precisions; the
+    projected probes re-read the panorama where rays meet that depth, and a hit moving across a texel
+    changes it: measured up to 3e-3 (6.6e-3 with a softer side choice in normals_from_depth).
+    """
     x = tiny_scene(3, H=H, W=W).image
     ref = phyir.predict(x, model=model)
+    raw = phyir.predict(x, model=model, refine_depth=False)
     for k in (1e-4, 1e4):
         s = phyir.predict(x * k, model=model)
-        assert torch.allclose(s.depth, ref.depth, rtol=1e-4)
+        net = phyir.predict(x * k, model=model, refine_depth=False)
+        assert float(_rel(net.depth, raw.depth).max()) < 2e-6
+        rel = _rel(s.depth, ref.depth)
+        assert float(rel.max()) < 3e-3 and float(rel.median()) < 2e-5
         assert torch.allclose(s.albedo, ref.albedo, atol=1e-5)
-        assert torch.allclose(s.probes, ref.probes * k, rtol=1e-3, atol=1e-6 * k)
+        assert torch.allclose(s.probes, ref.probes * k, rtol=1e-2, atol=1e-6 * k)
 
 
 def test_exposure_normalisation_extremes():

@@ -285,6 +285,9 @@ def test_level_matmul_dtype_policy(monkeypatch):
     monkeypatch.setattr(prefilter, "LEVEL_PRECISION", "auto")
     monkeypatch.setattr(prefilter, "cpu_has_native_bf16", lambda: False)
     assert prefilter.level_matmul_dtype(x, big) == torch.float32
+    monkeypatch.setattr(prefilter, "LEVEL_PRECISION", "bfloat16")  # forced on: the CPU isn't asked
+    assert prefilter.level_matmul_dtype(x, big) == torch.bfloat16
+    assert prefilter.level_matmul_dtype(x, big - 1) == torch.float32
     monkeypatch.setattr(prefilter, "LEVEL_PRECISION", "half")
     with pytest.raises(ValueError, match="LEVEL_PRECISION"):
         prefilter.level_matmul_dtype(x, big)
