@@ -168,7 +168,7 @@ def camera_height(depth: Tensor, normal: Tensor) -> float:
 
 def variants(model, x: Tensor, gt: PanoScene) -> dict[str, tuple[Tensor, Tensor]]:
     """depth [1,1,H,W] and normals [1,3,H,W] of every variant, after predict's consistency step."""
-    gm, kind = plausible_gmnet(model, x[None])
+    gm, kind = plausible_gmnet(model.gmnet, x[None])
     flip = kind == "mirrored"
     raw = {"base": (gm["depth"].float(), gm["normal"].float()),
            "tta_mirror": averaged(model, x, [(0, False), (0, True)], flip),

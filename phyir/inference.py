@@ -4,14 +4,15 @@
 brings every layer back to the input's resolution by guided upsampling (edges follow the image) and
 returns probes in the input's radiometric units:
 
-1. GMNet (depth, normals, materials) and GSNet (refined base colour / roughness) run only when a
-   wanted layer is missing from the input, or when LNet needs GMNet's layers as its inputs;
+1. the geometry network (``geometry``, default GMNet: depth, normals, materials) and GSNet (refined
+   base colour / roughness) run only when a wanted layer is missing from the input, or when LNet needs
+   the geometry layers as its inputs;
 2. LNet predicts a probe grid;
-3. with ``lighting="projection"`` each probe is re-read from the panorama itself where the camera saw
-   the surface its texels look at (:mod:`phyir.lighting.projection`), LNet's probe filling in the rest;
-   ``"fused"``, the default (:data:`DEFAULT_LIGHTING`), combines that with LNet's probe
-   (:mod:`phyir.lighting.fusion`): with the shipped weights it measured best on the synthetic split and
-   the real panoramas (README, "The model").
+3. the lighting method (``lighting``) makes the probes from LNet's and, for the methods that project,
+   the panorama re-read where the camera saw the surface a probe's texels look at
+   (:mod:`phyir.lighting.projection`).  Geometry networks and lighting methods are chosen by name from
+   :mod:`phyir.estimators`' registries (``phyir predict --help`` lists them); the default lighting,
+   :data:`DEFAULT_LIGHTING`, measured best on the synthetic split and the real panoramas.
 
 Layers the input already carries are used, never recomputed; ``outputs`` asks for a subset.  What
 ran, what was reused and how long each stage took are recorded in ``scene.meta`` (keys ``predict.*``).
@@ -36,20 +37,20 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.errors import InputError, PhyIRError
+from phyir.estimators import (  # DEFAULT_LIGHTING and DEFAULT_GEOMETRY are re-exported here
+    DEFAULT_GEOMETRY,
+    DEFAULT_LIGHTING,
+    GeometryNetwork,
+    LightingMethod,
+    geometry_networks,
+    lighting_methods,
+)
 from phyir.filters import guided_upsample
-from phyir.lighting.fusion import fuse_probes
 from phyir.plausible_geometry import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
 from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
 GM_LAYERS = ("depth", "normal", "albedo", "roughness", "metallic")
-LIGHTING = ("projection", "lnet", "fused")
-PROJECTED = ("projection", "fused")  # the lighting methods that project the panorama
-# `phyir eval --data data/h128 --split train` (24 held-out rooms), shipped lite weights: probe log-MSE
-# fused 0.0418, lnet 0.0516, projection 0.0543; relighting (diffuse / matte / mirror sphere) fused 0.0134 /
-# 0.0178 / 0.0359, lnet 0.0179 / 0.0251 / 0.0472 (phyir.lighting.fusion); on the real panoramas' protocol
-# the fused grid lights the diffuse sphere 0.31 off the panorama, LNet's 0.38 (README, "Real panoramas")
-DEFAULT_LIGHTING = "fused"
 DEFAULT_NET_SIZE = (256, 512)  # when the weights don't record their training resolution
 # every layer comes back at the input's size: ~140 bytes per input pixel at the peak
 # (docs/robustness.md), so 4096x8192 needs ~5 GB; larger inputs are refused
@@ -219,6 +220,7 @@ class PredictOptions:
     probes: str | None = "grid"
     points: Tensor | None = None
     lighting: str | None = None
+    geometry: str | None = None
     net_size: tuple[int, int] | None = None
     hdr: bool | None = None
     model: Any = None
@@ -240,12 +242,17 @@ class PredictOptions:
             want.discard("probes")
         if self.probes == "points" and self.points is None:
             raise PhyIRError("probes='points' needs points=[N,3]")
-        if self.lighting_method() not in LIGHTING:
-            raise PhyIRError(f"lighting must be one of {LIGHTING}, got {self.lighting!r}")
+        self.lighting_method()
+        self.geometry_network()
         return want
 
-    def lighting_method(self) -> str:
-        return self.lighting or DEFAULT_LIGHTING
+    def lighting_method(self) -> LightingMethod:
+        """The registered lighting method named by ``lighting`` (default :data:`DEFAULT_LIGHTING`)."""
+        return lighting_methods().get(self.lighting or DEFAULT_LIGHTING)
+
+    def geometry_network(self) -> GeometryNetwork:
+        """The registered geometry network named by ``geometry`` (default :data:`DEFAULT_GEOMETRY`)."""
+        return geometry_networks().get(self.geometry or DEFAULT_GEOMETRY)
 
 
 @dataclass
@@ -256,6 +263,7 @@ class PredictReport:
     computed: list[str] = field(default_factory=list)  # layers (and "probes") the model produced
     reused: list[str] = field(default_factory=list)  # layers taken from the input
     lighting: str = ""  # the lighting method, when probes were computed
+    geometry: str = ""  # the geometry network, when it ran
     net_size: tuple[int, int] | None = None  # network resolution, when the networks ran
     exposure_scale: float | None = None  # factor the networks' input was normalised by
     gm_pass: str = ""  # "upright", or "mirrored": GMNet's pass on the input mirrored through the horizon
@@ -293,7 +301,8 @@ class _Plan:
     missing: set[str]
     gm_inputs: set[str]  # GMNet layers the later networks read (LNet reads all five)
     run_gm: bool
-    lighting: str
+    lighting: LightingMethod
+    geometry: GeometryNetwork
 
     @staticmethod
     def of(scene: PanoScene, opts: PredictOptions, want: set[str]) -> _Plan:
@@ -303,7 +312,7 @@ class _Plan:
         missing = {k for k in GM_LAYERS if k in want and k not in have}
         gm_inputs = set(GM_LAYERS) if need_probes else missing
         return _Plan(want, have, have_probes, need_probes, missing, gm_inputs, bool(gm_inputs - have),
-                     opts.lighting_method())
+                     opts.lighting_method(), opts.geometry_network())
 
 
 @dataclass
@@ -334,6 +343,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     from phyir.color import exposure_scale
 
     model, dev, trained = _model_and_device(opts)
+    geometry = plan.geometry.load(model, dev) if plan.run_gm else None
     clock.step("model", 0.1)
     Hn, Wn = check_net_size(opts.net_size) if opts.net_size else net_size_for(scene.size[0], trained)
     img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
@@ -347,7 +357,8 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
     lnet_grid = None
     with torch.inference_mode(), autocast:
         if plan.run_gm:
-            gm, clock.report.gm_pass = plausible_gmnet(model, xn)
+            gm, clock.report.gm_pass = plausible_gmnet(geometry, xn)
+            clock.report.geometry = plan.geometry.name
             if opts.refine_depth:
                 _consistent_depth(gm, plan, clock.report)
             clock.step("gmnet", 0.35)
@@ -382,7 +393,7 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     H, W = scene.size
     guide_lo = _guide(net.xn[0].float())
     guide_hi = _guide(net.image * net.scale)
-    projection = plan.need_probes and plan.lighting in PROJECTED
+    projection = plan.need_probes and plan.lighting.projects
     geo_only = {"depth", "normal"} - plan.have - plan.want if projection else set()
     geo: dict[str, Tensor] = {}
     for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
@@ -419,21 +430,31 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     assert net.lnet_grid is not None
     lnet_grid = net.lnet_grid.cpu()
     pts = None if opts.probes == "grid" else opts.points.reshape(-1, 3).float().cpu()
-    if plan.lighting not in PROJECTED:
-        return lnet_grid if pts is None else lnet_probes_at(lnet_grid, pts)[:, None]
-    # (DepthSurface works in exposure-normalised units itself)
-    proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
-                           normal=geo.get("normal", out.normal))
-    if pts is None:
-        from phyir.lighting.projection import projected_probe_grid
+    lnet = lnet_grid if pts is None else lnet_probes_at(lnet_grid, pts)
+    method = plan.lighting
+    done: list[Tensor] = []
 
-        lnet, projected = lnet_grid, projected_probe_grid(proj_scene, lnet_grid)
-    else:
-        from phyir.lighting.projection import project_probes
+    def projected() -> Tensor:
+        """The panorama re-read from each probe along the predicted depth, LNet's probe where unseen."""
+        if not method.projects:
+            raise PhyIRError(f"lighting method {method.name!r} reads the projected probes: register it "
+                             "with projects=True")
+        if done:
+            return done[0]
+        # (DepthSurface works in exposure-normalised units itself)
+        proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
+                               normal=geo.get("normal", out.normal))
+        if pts is None:
+            from phyir.lighting.projection import projected_probe_grid
 
-        lnet = lnet_probes_at(lnet_grid, pts)
-        projected = project_probes(proj_scene, pts, tuple(lnet.shape[-2:]), lnet)[0]
-    probes = projected if plan.lighting == "projection" else fuse_probes(lnet, projected)
+            done.append(projected_probe_grid(proj_scene, lnet_grid))
+        else:
+            from phyir.lighting.projection import project_probes
+
+            done.append(project_probes(proj_scene, pts, tuple(lnet.shape[-2:]), lnet)[0])
+        return done[0]
+
+    probes = method.estimate(lnet, projected)
     return probes if pts is None else probes[:, None]
 
 
@@ -457,6 +478,8 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
     out.meta["predict.computed"] = " ".join(report.computed)
     out.meta["predict.reused"] = " ".join(report.reused)
     out.meta["predict.lighting"] = report.lighting
+    if report.geometry and report.geometry != DEFAULT_GEOMETRY:  # (absent: the default network)
+        out.meta["predict.geometry"] = report.geometry
     if report.gm_pass:
         out.meta["predict.gm_pass"] = report.gm_pass
     if report.hdr_recovery is not None:
@@ -488,9 +511,10 @@ def predict(source: str | os.PathLike | Tensor | PanoScene, options: PredictOpti
     ``probes``: ``"grid"`` (LNet's grid, at the network's probe grid), ``"points"`` (probes at the 3D
     ``points [N,3]`` only, returned as ``scene.probes [N,1,3,h,w]`` with ``meta["probe_layout"] =
     "points"``) or None (no probes).
-    ``lighting``: ``"projection"`` (probes re-read from the panorama where the camera saw, LNet
-    elsewhere), ``"lnet"`` (LNet only) or ``"fused"`` (the geometric mean of the two,
-    :mod:`phyir.lighting.fusion`); default :data:`DEFAULT_LIGHTING`.
+    ``lighting``: how the probes are made, the name of a method in
+    :func:`phyir.estimators.lighting_methods` (default :data:`DEFAULT_LIGHTING`); ``geometry``: the
+    network predicting depth, normals and materials, a name in
+    :func:`phyir.estimators.geometry_networks` (default :data:`DEFAULT_GEOMETRY`).
     ``net_size``: network resolution (H, W) (default: the weights' training resolution, at most the
     input's).  ``refine_depth``: pull near-level and near-plumb normals onto gravity's directions and
     make the predicted depth follow them — the network's normals where plausible, else the depth's own
@@ -536,7 +560,7 @@ def predict_with_report(source: str | os.PathLike | Tensor | PanoScene, options:
     report.seconds["total"] = round(time.perf_counter() - clock.start, 4)
     report.reused = [k for k in (*GM_LAYERS, "probes")
                      if k in plan.have or (k == "probes" and plan.have_probes)]
-    report.lighting = plan.lighting if "probes" in report.computed else ""
+    report.lighting = plan.lighting.name if "probes" in report.computed else ""
     _write_meta(out, report, opts.weights)
     if opts.progress is not None:
         opts.progress("done", 1.0)

@@ -10,7 +10,7 @@ and straight below the camera is the floor it stands on (:func:`phyir.gravity.fl
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -62,17 +62,19 @@ def unflip(out: dict[str, Tensor]) -> dict[str, Tensor]:
     return out
 
 
-def plausible_gmnet(model: Any, xn: Tensor) -> tuple[dict[str, Tensor], str]:
-    """GMNet's layers on the input ``xn [1,3,H,W]`` and which pass they are from ("upright" or
-    "mirrored"): when the normals have :func:`collapsed`, GMNet also runs on the input mirrored
-    through the horizon (a valid room, floor and ceiling swapped), and the pass whose normals face
-    the camera more is kept — all five layers, since a collapsed normal head means the whole pass is
-    out of its depth."""
-    gm = {k: v.float() for k, v in model.gmnet(xn).items()}
+def plausible_gmnet(network: Callable[[Tensor], dict[str, Tensor]],
+                    xn: Tensor) -> tuple[dict[str, Tensor], str]:
+    """A geometry network's layers on the input ``xn [1,3,H,W]`` and which pass they are from
+    ("upright" or "mirrored").  ``network`` is GMNet (``model.gmnet``) or another network of
+    :func:`phyir.estimators.geometry_networks` (its ``load``'s result).  When the normals have
+    :func:`collapsed`, the network also runs on the input mirrored through the horizon (a valid room,
+    floor and ceiling swapped), and the pass whose normals face the camera more is kept — all five
+    layers, since a collapsed normal head means the whole pass is out of its depth."""
+    gm = {k: v.float() for k, v in network(xn).items()}
     away = away_share(gm["normal"][0]) if "normal" in gm else 0.0
     if not collapsed(away):
         return gm, "upright"
-    flipped = unflip({k: v.float() for k, v in model.gmnet(xn.flip(-2)).items()})
+    flipped = unflip({k: v.float() for k, v in network(xn.flip(-2)).items()})
     if away_share(flipped["normal"][0]) < away:
         return flipped, "mirrored"
     return gm, "upright"

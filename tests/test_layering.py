@@ -23,9 +23,10 @@ GL_MODULES = ("viewer", "moderngl", "glfw", "imgui_bundle", "OpenGL")
 LAYERS = {
     "phyir.errors": 0, "phyir.scene": 0, "phyir.pano": 0, "phyir.color": 0, "phyir.filters": 0,
     "phyir.transforms": 0, "phyir.depth_normal": 0, "phyir.gravity": 0, "phyir.plausible_geometry": 0,
+    "phyir.estimators": 0,
     "phyir.io": 1, "phyir.shading": 1,
     "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,
-    "phyir.learn": 3,
+    "phyir.learn": 3, "phyir.geometry_networks": 3,
     "phyir.inference": 4,
     "phyir.evaluation": 5, "phyir.export": 5, "phyir.insert": 5,
     "phyir.bench": 6,
@@ -113,6 +114,23 @@ def private_uses(tree: ast.AST) -> list[tuple[int, str]]:
 def test_no_module_uses_another_modules_private_names():
     bad = [f"{p.relative_to(REPO)}:{line}: {use}" for p in sources(*SOURCE_DIRS)
            for line, use in private_uses(ast.parse(p.read_text()))]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_lighting_methods_are_listed_once():
+    """The lighting methods are named by the registry (phyir.estimators, filled from the entry points),
+    not by a tuple of their names kept in step by hand."""
+    names = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]
+                ["phyir.lighting_methods"])
+    assert {"fused", "lnet", "projection"} <= names
+    bad = []
+    for p in sources(*SOURCE_DIRS):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+                strings = {e.value for e in node.elts if isinstance(e, ast.Constant)}
+                if names <= strings:
+                    bad.append(f"{p.relative_to(REPO)}:{node.lineno}: lists the lighting methods (use "
+                               "phyir.estimators.lighting_methods())")
     assert not bad, "\n".join(bad)
 
 
