@@ -47,10 +47,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--real", metavar="DIR",
                         help="real panoramas without ground truth (.hdr/.exr/.png/.jpg): geometry checks, "
                              "invariances and lighting at a point (phyir.evaluation.real)")
+    parser.add_argument("--scans", metavar="DIR",
+                        help="scanned rooms with ground-truth depth (rgb.* + depth.npy/.exr/16-bit .png "
+                             "per room): the field's depth protocol, normals, the constant-depth baseline "
+                             "(phyir.evaluation.real_depth)")
     parser.add_argument("--sheet", metavar="PNG", type=options.path,
-                        help="--real: write a contact sheet of the rooms")
-    parser.add_argument("--lighting", choices=predict_cmd.LIGHTING,
-                        help="--real: predict's lighting method for the probe grid (default: predict's)")
+                        help="--real, --scans: write a contact sheet of the rooms")
+    parser.add_argument("--lighting", choices=predict_cmd.lighting_methods().names(),
+                        help="--real: predict's lighting method for the probe grid (default: predict's; "
+                             "phyir predict --help describes them)")
 
 
 def markdown(results: dict[str, dict[str, float]]) -> str:
@@ -121,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
 
     if getattr(args, "real", None):
         return run_real(args)
+    if getattr(args, "scans", None):
+        return run_scans(args)
     if bool(args.data) == bool(args.predictions):
         raise PhyIRError("give either prediction files with --gt, or --data (run the model)")
     if args.data:
@@ -188,4 +195,20 @@ def run_real(args: argparse.Namespace) -> int:
     write_outputs(args, results, markdown_real(results))
     if args.sheet:
         save_contact_sheet(sheet, args.sheet)
+    return 0
+
+
+def run_scans(args: argparse.Namespace) -> int:
+    """``--scans DIR``: :func:`phyir.evaluation.real_depth.evaluate_scans`, one line per room on stderr,
+    the table printed, JSON / Markdown / contact sheet written when asked."""
+    from phyir.errors import PhyIRError
+    from phyir.evaluation.real_depth import evaluate_scans, markdown_scans
+
+    if args.data or args.predictions or args.gt or args.points or args.real:
+        raise PhyIRError("--scans evaluates a folder of scanned rooms on its own (no --data, --gt, PRED, "
+                         "--real or --points)")
+    options = {k: v for k, v in (("weights", args.weights), ("device", args.device)) if v is not None}
+    results = evaluate_scans(args.scans, sheet=args.sheet,
+                             log=lambda s: print(s, file=sys.stderr, flush=True), **options)
+    write_outputs(args, results, markdown_scans(results))
     return 0

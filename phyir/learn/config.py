@@ -49,7 +49,8 @@ MAX_TRAIN_SIDE = 4096  # probe grid, per side
 LOSS_BOUNDS = {"si_lambda": (0.0, 1.0, False), "sc_sigma": (1e-6, 1e3, False), "render_spp": (1, 4096, True)}
 LOSS_CHOICES = {"depth_mode": ("l2", "scale_invariant"), "render_method": RENDER_METHODS,
                 "metallic_loss": ("l2", "bce")}
-CHOICES = {"schedule": ("constant", "cosine"), "device": ("auto", "cpu", "cuda"), "model": ("lite", "full")}
+CHOICES = {"schedule": ("constant", "cosine"), "device": ("auto", "cpu", "cuda"),
+           "model": ("lite", "full", "effnet")}
 # options that change what a resumed run computes: resuming with other values is refused
 # (epochs may grow: a stage can be continued)
 RESUME_FIXED = ("stage", "model", "init", "lr", "batch_size", "size", "probe_grid", "schedule",

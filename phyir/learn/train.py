@@ -179,8 +179,10 @@ def _initial_weights(cfg: TrainConfig, model: PhyIRModel) -> str | None:
     """Load the stage's starting weights into ``model``; returns where they came from."""
     from phyir.learn.weights import load_into
 
-    if cfg.init == "scratch" or (cfg.init is None and cfg.stage == "gm"):
+    if cfg.init == "scratch":
         return None
+    if cfg.init is None and cfg.stage == "gm":  # a fresh start: a pretrained encoder starts pretrained
+        return "imagenet encoder" if model.gmnet.load_pretrained() else None
     if cfg.init is not None:
         load_into(model, cfg.init)
         return cfg.init

@@ -92,7 +92,7 @@ def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict
 _WIDTH = (1 / 64, 4.0)  # channel multipliers (full = 1.0, lite = 0.5 / 0.25)
 _INT_FIELDS = {"light_head_kernel": (1, 7), "light_scale": (1, 8), "probe_block": (1, 1024),
                "gs_width": (1, 256), "gs_radius": (0, 16)}
-_CHOICES = {"norm": ("group", "batch")}
+_CHOICES = {"norm": ("group", "batch"), "gm_encoder": ("resnet18", "efficientnet-lite0")}
 GS_TARGETS = ("albedo", "roughness", "normal", "metallic")
 MAX_PROBE_SIDE = 128
 LOADABLE_DTYPES = (torch.float16, torch.bfloat16, torch.float32)
@@ -255,9 +255,30 @@ def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = No
     return save_weights(model, dst, info, half=True)
 
 
-if __name__ == "__main__":  # python -m phyir.learn.weights ship SRC DST
+def with_networks_of(model, other: str | os.PathLike, names: tuple[str, ...] = ("lnet", "gsnet")):
+    """``model`` with its sub-networks ``names`` replaced by those of the weights file ``other`` (a
+    geometry-only run's model given the shipped LNet and GSNet, which its stage left untrained); the
+    two architectures must agree on those sub-networks."""
+    tensors, arch = read_weights(other)
+    want = model.state_dict()
+    part = {k: v for k, v in tensors.items() if k.split(".", 1)[0] in names}
+    check_tensors(other, part, {k: v for k, v in want.items() if k.split(".", 1)[0] in names},
+                  str(arch.get("size", "?")), model.config.size)
+    model.load_state_dict({**want, **{k: v.to(want[k].dtype) for k, v in part.items()}})
+    return model
+
+
+if __name__ == "__main__":  # python -m phyir.learn.weights ship SRC DST [--rest FILE]
     import sys
 
-    if len(sys.argv) != 4 or sys.argv[1] != "ship":
-        sys.exit("usage: python -m phyir.learn.weights ship SRC.safetensors|CHECKPOINT.pt DST.safetensors")
-    print(ship(sys.argv[2], sys.argv[3]))
+    args = sys.argv[1:]
+    if len(args) not in (3, 5) or args[0] != "ship" or (len(args) == 5 and args[3] != "--rest"):
+        sys.exit("usage: python -m phyir.learn.weights ship SRC.safetensors|CHECKPOINT.pt DST.safetensors "
+                 "[--rest WEIGHTS: LNet and GSNet from these]")
+    out = ship(args[1], args[2])
+    if len(args) == 5:
+        model = with_networks_of(load_model(out), args[4])
+        info = json.loads(sidecar_path(out).read_text()) | {"lnet_gsnet_from": args[4]}
+        info.pop("architecture", None)
+        save_weights(model, out, info, half=True)
+    print(out)

@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from phyir.nets.efficientnet import EfficientNetLite0Encoder, pretrained_state_dict, to_pretrained_input
 from phyir.nets.layers import CircConv2d, circular_upsample2x, scaled
 from phyir.nets.resnet import ResNet18Encoder
 from phyir.pano import pixel_lonlat
@@ -70,22 +71,42 @@ class Decoder(nn.Module):
         return self.out(x)
 
 
+ENCODERS = ("resnet18", "efficientnet-lite0")
+
+
 class GMNet(nn.Module):
     """Image [B,3,H,W] (exposure-normalised, linear) -> dict of depth/normal/albedo/roughness/metallic.
 
-    H and W must be multiples of 32.  ``enc_width``/``dec_width`` scale the channel counts.
+    H and W must be multiples of 32.  ``encoder``: the paper's ResNet-18 (``enc_width`` scales its
+    channels; trained from scratch here) or the ImageNet-pretrained EfficientNet-Lite0
+    (:mod:`phyir.nets.efficientnet`; its weights are loaded by :meth:`load_pretrained`, a fresh
+    training run's start).  ``dec_width`` scales the decoders' channels.
     """
 
-    def __init__(self, enc_width: float = 1.0, dec_width: float = 1.0, norm: str = "group"):
+    def __init__(self, enc_width: float = 1.0, dec_width: float = 1.0, norm: str = "group",
+                 encoder: str = "resnet18"):
         super().__init__()
-        self.encoder = ResNet18Encoder(3, enc_width, norm)
+        if encoder not in ENCODERS:
+            raise ValueError(f"unknown GMNet encoder {encoder!r} (choose from {', '.join(ENCODERS)})")
+        self.encoder_name = encoder
+        if encoder == "resnet18":
+            self.encoder = ResNet18Encoder(3, enc_width, norm)
+        else:
+            self.encoder = EfficientNetLite0Encoder(pretrained=False)
         self.decoders = nn.ModuleDict({k: Decoder(self.encoder.channels, c, dec_width)
                                        for k, c in HEADS.items()})
         with torch.no_grad():
             self.decoders["depth"].out.bias.fill_(math.log(DEPTH_INIT))
 
+    def load_pretrained(self) -> bool:
+        """Load the encoder's ImageNet weights, where it has them; returns whether it did."""
+        if self.encoder_name != "efficientnet-lite0":
+            return False
+        self.encoder.load_state_dict(pretrained_state_dict())
+        return True
+
     def forward(self, image: Tensor) -> dict[str, Tensor]:
-        x = prepare_input(image)
+        x = prepare_input(image) if self.encoder_name == "resnet18" else to_pretrained_input(image)
         f = self.encoder(x)
         raw = {k: dec(f) for k, dec in self.decoders.items()}
         return {

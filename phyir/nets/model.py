@@ -41,6 +41,7 @@ class ModelConfig:
     gs_width: int = 16
     gs_radius: int = 2
     gs_targets: tuple[str, ...] = ("albedo", "roughness")
+    gm_encoder: str = "resnet18"  # or "efficientnet-lite0" (ImageNet-pretrained; phyir.nets.gmnet)
 
     @staticmethod
     def named(size: str, **overrides) -> ModelConfig:
@@ -64,6 +65,8 @@ SIZES: dict[str, ModelConfig] = {
     "full": ModelConfig(size="full", enc_width=1.0, dec_width=1.0, light_width=1.0, light_head_kernel=3,
                         gs_width=32),
     "lite": ModelConfig(),
+    # lite's LNet and GSNet (so they load from the lite weights) behind a pretrained encoder
+    "effnet": ModelConfig(size="effnet", gm_encoder="efficientnet-lite0", dec_width=0.5),
 }
 
 
@@ -72,7 +75,7 @@ class PhyIRModel(nn.Module):
         super().__init__()
         cfg = ModelConfig.named(config) if isinstance(config, str) else config
         self.config = cfg
-        self.gmnet = GMNet(cfg.enc_width, cfg.dec_width, cfg.norm)
+        self.gmnet = GMNet(cfg.enc_width, cfg.dec_width, cfg.norm, cfg.gm_encoder)
         self.lnet = LNet(cfg.light_width, cfg.probe_size, cfg.light_head_kernel)
         self.gsnet = GSNet(cfg.gs_width, cfg.gs_radius, cfg.gs_targets)
         # channels-last convolutions are ~1.6x faster on CPU (measured: phyir.bench.profile)

@@ -1,0 +1,73 @@
+"""The real-scan benchmark's contact sheet: per room the input, the true depth, ours (median-aligned,
+on the truth's colour scale) and the relative error, with a legend."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import linear_to_srgb
+
+TILE = (128, 256)
+DEPTH_RAMP = np.array([[0.85, 0.15, 0.1], [0.95, 0.8, 0.2], [0.3, 0.8, 0.4], [0.2, 0.45, 0.9],
+                       [0.08, 0.05, 0.35]])  # near (red) to far (dark blue)
+ERROR_MAX = 0.5  # relative error shown white at this and above; 0 is black
+HOLE = (255, 0, 255)  # no ground truth
+
+
+def _ramp(t: np.ndarray) -> np.ndarray:
+    t = np.clip(t, 0, 1) * (len(DEPTH_RAMP) - 1)
+    rgb = np.stack([np.interp(t, np.arange(len(DEPTH_RAMP)), DEPTH_RAMP[:, c]) for c in range(3)], -1)
+    return (rgb * 255 + 0.5).astype(np.uint8)
+
+
+def _small(x: Tensor) -> np.ndarray:
+    return pano.resize_area(x.float(), *TILE).numpy()
+
+
+def depth_tiles(image: Tensor, truth: Tensor, ours: Tensor, error: Tensor) -> list[tuple[str, np.ndarray]]:
+    """uint8 tiles [h,w,3]: both depths in log depth between the truth's 2nd and 98th percentiles."""
+    valid = _small((truth > 0).float())[0] > 0.5
+    t_log = np.log(np.maximum(_small(truth)[0], 1e-3))
+    lo, hi = np.percentile(t_log[valid], (2, 98)) if valid.any() else (0.0, 1.0)
+    def colours(d: Tensor) -> np.ndarray:
+        out = _ramp((np.log(np.maximum(_small(d)[0], 1e-3)) - lo) / max(hi - lo, 1e-6))
+        out[~valid] = HOLE
+        return out
+    err = (np.clip(_small(error)[0] / ERROR_MAX, 0, 1) * 255 + 0.5).astype(np.uint8)
+    err = np.repeat(err[..., None], 3, -1)
+    err[~valid] = HOLE
+    img = linear_to_srgb(np.clip(_small(image).transpose(1, 2, 0), 0, 1))
+    return [("input", (img * 255 + 0.5).astype(np.uint8)), ("truth", colours(truth)),
+            ("ours (aligned)", colours(ours)), (f"|error| / truth (white: {ERROR_MAX:g})", err)]
+
+
+def save_depth_sheet(rooms: list[tuple[str, dict[str, Tensor]]], path: str | os.PathLike) -> None:
+    """One row per room (``rooms``: name and :func:`phyir.evaluation.real_depth.evaluate_scan`'s
+    tensors), written atomically as PNG."""
+    from PIL import Image, ImageDraw
+
+    from phyir.io import atomic_write
+
+    pad, line = 4, 14
+    h, w = TILE
+    rows = [(name, depth_tiles(t["image"], t["truth"], t["ours"], t["error"])) for name, t in rooms]
+    cols = len(rows[0][1])
+    size = (pad + cols * (w + pad), line + len(rows) * (line + h + pad) + line)
+    sheet = Image.new("RGB", size, (24, 24, 24))
+    draw = ImageDraw.Draw(sheet)
+    for c, (label, _) in enumerate(rows[0][1]):
+        draw.text((pad + c * (w + pad), 1), label, fill=(200, 200, 200))
+    for r, (name, tiles) in enumerate(rows):
+        y = line + r * (line + h + pad)
+        draw.text((pad, y + 1), name, fill=(240, 240, 160))
+        for c, (_, tile) in enumerate(tiles):
+            sheet.paste(Image.fromarray(tile), (pad + c * (w + pad), y + line))
+    draw.text((pad, size[1] - line + 1), "depth: log scale, near red to far blue; magenta: no ground truth",
+              fill=(200, 200, 200))
+    with atomic_write(path) as tmp:
+        sheet.save(tmp, format="PNG")
+
