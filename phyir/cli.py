@@ -17,7 +17,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 # Idle OpenMP threads sleep instead of spinning (set before torch loads; matters on busy small CPUs).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -88,7 +88,69 @@ class OneLineParser(argparse.ArgumentParser):
     not argparse's usage block and then the error; exit 2 as before.  Subparsers inherit it."""
 
     def error(self, message: str):
+        if message.startswith("the following arguments are required"):
+            # a mistyped option (--ouput) left a required one (--output) unset: name the typo first
+            unknown = self.unknown_options(self._arg_strings)
+            if unknown:
+                message = f"{self.unrecognized(unknown)}; {message}"
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    # -- mistyped options: the nearest option of the command that was given, and its --help -------
+    _arg_strings: tuple[str, ...] = ()
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._arg_strings = tuple(sys.argv[1:] if args is None else args)  # a subcommand's: its own words
+        return super().parse_known_args(args, namespace)
+
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, but an unrecognized option is refused by the subcommand's parser (its name and
+        its --help, not ``phyir --help``) with the nearest option it has."""
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            owner = self._subcommand_parser(ns)
+            unknown = owner.unknown_options(extras)
+            owner.error(owner.unrecognized(unknown) if unknown
+                        else f"unrecognized arguments: {' '.join(extras)}")
+        return ns
+
+    def _subcommand_parser(self, ns: argparse.Namespace) -> OneLineParser:
+        """The parser of the subcommand ``ns`` ran (a plug-in's too), else this one."""
+        for action in self._actions:
+            if isinstance(action.choices, dict):  # the subcommands: name -> parser
+                sub = action.choices.get(getattr(ns, action.dest, None) or "")
+                if isinstance(sub, OneLineParser):
+                    return sub._subcommand_parser(ns)
+        return self
+
+    def unknown_options(self, arg_strings: Sequence[str]) -> list[str]:
+        """The words of ``arg_strings`` that look like options this parser does not have (an
+        unambiguous prefix of a long option, ``--opt=value`` and ``-oVALUE`` are its own)."""
+        known = self._option_string_actions
+        out = []
+        for arg in arg_strings:
+            if arg == "--":
+                break
+            if not arg.startswith("-") or arg == "-" or _is_number(arg):
+                continue
+            head = arg.split("=", 1)[0]
+            if head in known or (not arg.startswith("--") and arg[:2] in known):
+                continue
+            if arg.startswith("--") and self.allow_abbrev and any(o.startswith(head) for o in known):
+                continue
+            out.append(head)
+        return out
+
+    def unrecognized(self, unknown: list[str]) -> str:
+        """``unrecognized option --ouput (did you mean --output?)``: the first of ``unknown``, the
+        option of this parser nearest to it (difflib), if any is near."""
+        import difflib
+
+        long = unknown[0].startswith("--")
+        options = [o for o in self._option_string_actions if o.startswith("--") == long]
+        near = difflib.get_close_matches(unknown[0], options, n=1, cutoff=0.6)
+        more = f" (and {', '.join(unknown[1:])})" if len(unknown) > 1 else ""
+        hint = f" (did you mean {near[0]}?)" if near else ""
+        return f"unrecognized option {unknown[0]}{more}{hint}"
 
     def _get_value(self, action, arg_string):
         """[issue 22, class 9] A PhyIRError raised by an option's type function is the message
@@ -101,6 +163,15 @@ class OneLineParser(argparse.ArgumentParser):
                 raise
             named = isinstance(cause, InputError) and cause.path in action.option_strings
             raise argparse.ArgumentError(action, cause.problem if named else str(cause)) from None
+
+
+def _is_number(word: str) -> bool:
+    """``-3``, ``-1e-3``, ``-2,5`` (a value such as ``--yaw -30`` or ``--at -1,2``), not an option."""
+    try:
+        [float(w) for w in word.split(",")]
+    except ValueError:
+        return False
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -40,9 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the glTF camera's vertical field of view, degrees (1..179)")
     add("--object", action="append", default=[], metavar="OBJ",
         help="insert sphere, cube, cylinder or a mesh file (repeatable; each with one --at or --position)")
-    add("--at", dest="places", action=_Placement, metavar="U,V",
-        type=options.numbers(2, -PIXEL, PIXEL, "U,V"),
-        help="stand the object on the surface seen at pixel column U, row V")
+    add("--at", dest="places", action=_Placement, metavar="U,V", type=options.image_point(PIXEL),
+        help="stand the object on the surface seen at U,V: " + options.POINT_HELP)
     add("--position", dest="places", action=_Placement, metavar="X,Y,Z",
         type=options.numbers(3, -POSITION, POSITION, "X,Y,Z"),
         help=f"put the object's centre at this world point (m, each within +-{POSITION:g})")
@@ -107,6 +106,8 @@ def _warn_mixed_scale(specs: list[str], scales: list[float]) -> None:
 
 def make_objects(args: argparse.Namespace, scene) -> list:
     """The inserted objects, placed as ``phyir insert`` places them."""
+    import warnings
+
     from phyir.errors import InputError
     from phyir.insert import placement, views
 
@@ -119,9 +120,15 @@ def make_objects(args: argparse.Namespace, scene) -> list:
     _warn_mixed_scale(args.object, args.scale)
     scales = _per_object(args.scale, n, "--scale", None)
     materials = _per_object(args.material, n, "--material", "diffuse")
+    H, W = scene.size
     for spec, (flag, values), scale, material in zip(args.object, places, scales, materials):
         obj = views.make_object(spec, scale, material)
-        views.place_object(obj, scene, **({"at": values} if flag == "--at" else {"position": values}))
+        if flag == "--at":
+            views.place_object(obj, scene, at=options.to_pixels(values, W, H))
+            if placement.on_ceiling(obj.support):  # hangs from it: warned, not refused (placement.py)
+                warnings.warn(placement.ceiling_warning(f"--at {values[0]:g},{values[1]:g}", H), stacklevel=2)
+        else:
+            views.place_object(obj, scene, position=values)
         inside = placement.camera_inside([obj])  # [issue 22] as phyir insert: nothing could be seen
         if inside:
             raise InputError(flag, f"{inside} (--scale)")

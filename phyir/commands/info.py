@@ -71,6 +71,17 @@ def describe(path: str) -> str:
     return "\n".join(lines)
 
 
+def format_confidence(confidence: float) -> str:
+    """The geometry confidence as every command and the viewer show it: two decimals, rounded down,
+    so a score reads 1.00 only when it is 1 (0.996 reads 0.99) and a flagged one never reads as the
+    threshold (0.4999 reads 0.49, not 0.50; phyir.evaluation.real.FLAG_BELOW)."""
+    import math
+
+    if not math.isfinite(confidence):
+        return f"{confidence}"
+    return f"{math.floor(confidence * 100 + 1e-9) / 100:.2f}"  # (+1e-9: 0.29 * 100 is 28.999...)
+
+
 def confidence_line(path: str) -> str:
     """The geometry confidence of a scene with depth and normals (phyir.evaluation.real)."""
     import warnings
@@ -82,6 +93,6 @@ def confidence_line(path: str) -> str:
         warnings.simplefilter("ignore")  # repairs were reported by the layer table above
         c = scene_confidence(io.load_scene(path))
     verdict = "flagged: implausible geometry" if c["flagged"] else "plausible"
-    return (f"  geometry confidence: {float(c['confidence']):.2f} ({verdict}; nadir floor-like "
-            f"{float(c['nadir_up']):.2f}, normals vs depth {float(c['consistency_deg']):.0f}°, camera height "
-            f"{float(c['camera_height']):.2f} m)")
+    return (f"  geometry confidence: {format_confidence(float(c['confidence']))} ({verdict}; nadir "
+            f"floor-like {float(c['nadir_up']):.2f}, normals vs depth {float(c['consistency_deg']):.0f}°, "
+            f"camera height {float(c['camera_height']):.2f} m)")

@@ -62,6 +62,47 @@ def numbers(count: int, lo: float, hi: float, what: str = "X,Y") -> Callable[[st
     return parse
 
 
+class ImagePoint(tuple):
+    """``(u, v)`` of ``--at`` / ``--path`` as given: a pixel's column and row, or (``fraction``) the
+    fractions of the panorama's width and height; :func:`to_pixels` makes pixels of either."""
+
+    fraction: bool
+
+    def __new__(cls, u: float, v: float, fraction: bool = False):
+        point = super().__new__(cls, (u, v))
+        point.fraction = fraction
+        return point
+
+
+POINT_HELP = ("pixel column U, row V from the top left (e.g. 512,400 in a 1024x512 panorama), or, when "
+              "both are written with a dot and are in 0..1, fractions of the width and height "
+              "(0.5,0.78: the middle column, 78%% of the way down)")
+
+
+def image_point(limit: float) -> Callable[[str], ImagePoint]:
+    """``U,V``: pixels (finite, within +-``limit``; the panorama's size is checked once it is
+    loaded), or fractions of the width and height when both are in [0, 1] and written with a dot
+    (``0.5,0.78``; ``0,1`` and ``1,0`` are pixels)."""
+    pair = numbers(2, -limit, limit, "U,V")
+
+    def parse(text: str) -> ImagePoint:
+        u, v = pair(text)
+        fraction = all("." in p for p in str(text).split(",")) and 0 <= u <= 1 and 0 <= v <= 1
+        return ImagePoint(u, v, fraction)
+    parse.__name__ = "point"
+    return parse
+
+
+def to_pixels(point: tuple[float, float], width: int, height: int) -> tuple[float, float]:
+    """``point`` (an :class:`ImagePoint`, or a plain pair: pixels) as a pixel column and row, the
+    ``--at`` of ``phyir.insert.views.place_object`` (whose pixel centres are at +0.5): a fraction
+    ``f`` of the width is at ``f * width`` exactly, the seam's two sides (0 and 1) the same column."""
+    u, v = point
+    if not getattr(point, "fraction", False):
+        return u, v
+    return (u * width - 0.5) % width, min(max(v * height - 0.5, 0.0), height - 0.5)
+
+
 def size(lo: int, hi: int, *, order: str = "WxH", max_pixels: int | None = None,
          multiple: int = 1) -> Callable[[str], tuple[int, int]]:
     """``AxB`` (``order`` names the two: ``WxH`` or ``HxW``): integers in [lo, hi], multiples of

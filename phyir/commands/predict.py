@@ -7,12 +7,16 @@ import sys
 from pathlib import Path
 
 from phyir.commands import options
-
-LIGHTING = ("projection", "lnet", "fused")  # phyir.inference.LIGHTING (tested equal; torch-free import)
+from phyir.estimators import DEFAULT_GEOMETRY, DEFAULT_LIGHTING, geometry_networks, lighting_methods
 
 HELP = "predict depth, normals, materials and light probes of panoramas (writes scene .exr files)"
 
 IMAGE_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
+
+
+def registry_help(registry, default: str) -> str:
+    """``name: summary; ...`` of a :mod:`phyir.estimators` registry, for an option's --help."""
+    return registry.describe(default).replace("%", "%%")  # (argparse formats help with %)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,10 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outputs", metavar="LIST",
                         help="comma-separated subset of depth,normal,albedo,roughness,metallic,probes "
                              "(default: all); layers the input already has are kept, not recomputed")
-    parser.add_argument("--lighting", choices=LIGHTING, default=None,
-                        help="LNet's probes (lnet), probes re-read from the panorama where the camera saw, "
-                             "LNet elsewhere (projection), or the geometric mean of both (fused, default: "
-                             "the best on the synthetic split)")
+    parser.add_argument("--lighting", choices=lighting_methods().names(), default=None,
+                        help="how the probes are made: "
+                             + registry_help(lighting_methods(), DEFAULT_LIGHTING))
+    parser.add_argument("--geometry", choices=geometry_networks().names(), default=None,
+                        help="the network predicting depth, normals and materials: "
+                             + registry_help(geometry_networks(), DEFAULT_GEOMETRY))
     parser.add_argument("--net-size", metavar="HxW", help="network resolution (default: the weights')")
     parser.add_argument("--ldr", action="store_true", help="treat inputs as LDR (no exposure normalisation)")
     parser.add_argument("--half", action="store_true", help="write float16 EXR channels")
@@ -92,13 +98,14 @@ def uniform_warning(image) -> str | None:
 def geometry_confidence(scene) -> str:
     """Record the scene's geometry confidence in its meta (the EXR header) and say it in words:
     "; geometry confidence 0.96", with a warning when it is flagged; "" without depth and normals."""
+    from phyir.commands.info import format_confidence
     from phyir.evaluation.real import scene_confidence
 
     if scene.depth is None or scene.normal is None:
         return ""
     c = scene_confidence(scene)
     scene.meta["predict.confidence"] = f"{float(c['confidence']):.3f}"
-    text = f"; geometry confidence {float(c['confidence']):.2f}"
+    text = f"; geometry confidence {format_confidence(float(c['confidence']))}"
     return text + " (flagged: the room's geometry is implausible, check it)" if c["flagged"] else text
 
 
@@ -141,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
             # the model is loaded (once, cached) only if some layer has to be computed
             scene, report = predict_with_report(
                 src, weights=args.weights, device=device, outputs=outputs, lighting=args.lighting,
-                net_size=net_size, hdr=False if args.ldr else None)
+                geometry=args.geometry, net_size=net_size, hdr=False if args.ldr else None)
             uniform = uniform_warning(scene.image)
             if uniform:
                 bar.write(f"phyir predict: warning: {shown(src)}: {uniform}", file=sys.stderr)

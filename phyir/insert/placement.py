@@ -242,3 +242,25 @@ def coverage_problem(alpha: np.ndarray) -> str | None:
         return ("an object covers the whole view (is the camera inside it, or is it far too large — "
                 "a mesh modelled in centimetres?)")
     return None
+
+
+# Standing an object on a surface that faces down (a ceiling) hangs it there upside down.  That is
+# warned about, not refused: a pendant lamp or a hanging plant is what it is for, and it is the only
+# way to attach an object to the ceiling (``--position`` leaves it floating, resting on what is below
+# it).  The warning is for the usual mistake: a row counted in another image size (``--at 512,20``
+# meant for a taller image lands near the zenith, where the equirect view stretches the object).
+CEILING_COS = 0.5  # a support whose normal points down by more than this (within 60° of straight down)
+
+
+def on_ceiling(support: tuple[np.ndarray, np.ndarray] | None) -> bool:
+    """Whether an object's ``support`` (contact point, normal) faces down: a ceiling."""
+    return support is not None and float(np.asarray(support[1])[1]) < -CEILING_COS
+
+
+def ceiling_warning(option: str, height: int, frames: int = 1, of: int = 1) -> str:
+    """A one-line warning that ``option`` put an object (``frames`` of ``of``) on the ceiling of a
+    panorama ``height`` pixels high."""
+    where = f"{frames} of {of} points are" if of > 1 else "the point is"
+    return (f"{option}: {where} on the ceiling (a surface facing down): the object hangs from it upside "
+            f"down, as a lamp would; to stand it on the floor give a point below the horizon (a row "
+            f"over {height // 2} of {height}, or over 0.5 as a fraction)")

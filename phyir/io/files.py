@@ -5,10 +5,12 @@ output paths, signals").
 * Inputs must be regular files (symlinks followed): a FIFO, a device, a socket or a folder is refused
   before it is opened, so nothing blocks on it; :func:`open_input` opens a file once, without blocking.
 * Outputs must be new or regular files: :func:`check_output` refuses devices and folders.
-* Temporaries are named ``.<name>.<pid>-<8 hex>.phyir.tmp``: hidden and with no input's extension, so
-  no folder reader takes one for an input (:func:`is_temporary`, :func:`folder_files`).  A write into
-  a folder first removes the temporaries a killed process left there (:func:`sweep_stale`: untouched
-  for :data:`STALE_SECONDS` and their process not running).
+* Temporaries are named ``.<name>.<pid>@<origin>-<8 hex>.phyir.tmp``: hidden and with no input's
+  extension, so no folder reader takes one for an input (:func:`is_temporary`, :func:`folder_files`).
+  ``<origin>`` names the machine and process-id namespace of the writer (:func:`origin`).  A write
+  into a folder first removes the temporaries a killed process left there (:func:`sweep_stale`: at
+  once when the writer was of this origin and its process is gone, e.g. after SIGKILL; otherwise
+  when untouched for :data:`STALE_SECONDS`).
 * Several outputs of one command are written as one set (:class:`AtomicSet`).
 """
 
@@ -16,10 +18,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
+import hashlib
 import os
 import re
 import secrets
 import signal
+import socket
 import stat
 import threading
 import time
@@ -30,8 +35,10 @@ from phyir.errors import InputError, PhyIRError, os_error, shown
 
 TMP_SUFFIX = ".phyir.tmp"
 STALE_SECONDS = 600  # a temporary untouched this long belongs to a process that died
-# ours, and those of earlier versions (".<stem>.<hex>.tmp<ext>"), which readers took for inputs
-_TEMPORARY = re.compile(r"\..+\.(?:(?P<pid>\d+)-)?[0-9a-f]{8}(?:\.phyir\.tmp|\.tmp(?:\.[A-Za-z0-9]+)?)")
+# ours (".<name>.<pid>@<origin>-<hex>.phyir.tmp"), and those of earlier versions (no "@<origin>";
+# ".<stem>.<hex>.tmp<ext>", which readers took for inputs)
+_TEMPORARY = re.compile(r"\..+\.(?:(?P<pid>\d+)(?:@(?P<origin>[0-9a-f]{8}))?-)?[0-9a-f]{8}"
+                        r"(?:\.phyir\.tmp|\.tmp(?:\.[A-Za-z0-9]+)?)")
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a pipe (FIFO)"),
           (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
           (stat.S_ISSOCK, "a socket"))
@@ -127,7 +134,21 @@ def folder_files(folder: str | os.PathLike, suffixes: Iterable[str]) -> list[str
     return sorted(out)
 
 
-def _running(pid: int) -> bool:
+@functools.cache
+def origin() -> str:
+    """8 hex digits naming where this process's ids mean something: the machine (host name) and, on
+    Linux, the process-id namespace (a container).  A temporary written under another origin (a
+    folder shared over the network or with a container) holds a process id that cannot be checked."""
+    ns = ""
+    with contextlib.suppress(OSError, AttributeError):
+        ns = os.readlink("/proc/self/ns/pid")
+    return hashlib.blake2s(f"{socket.gethostname()}|{ns}".encode(), digest_size=4).hexdigest()
+
+
+def _running(pid: int) -> bool | None:
+    """Whether process ``pid`` runs; None where that cannot be asked (Windows: signal 0 is Ctrl-C)."""
+    if os.name == "nt":
+        return None
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -138,18 +159,27 @@ def _running(pid: int) -> bool:
 
 
 def sweep_stale(folder: str | os.PathLike, older_than: float = STALE_SECONDS) -> list[str]:
-    """Remove the temporaries of our naming in ``folder`` that a dead process left: not modified
-    for ``older_than`` seconds and (names with a process id) that process no longer running."""
+    """Remove the temporaries of our naming in ``folder`` that a dead process left.
+
+    * written under this :func:`origin` and its process no longer runs: at once (a run killed with
+      SIGKILL leaves nothing after the next write into its folder);
+    * its process still runs (checked for this origin and for names of earlier versions): kept;
+    * otherwise (another origin, a name of an earlier version): when untouched for ``older_than`` s."""
     removed = []
     now = time.time()
     with contextlib.suppress(OSError), os.scandir(folder) as it:
         for e in it:
             m = _TEMPORARY.fullmatch(e.name)
-            if m is None or (m["pid"] and _running(int(m["pid"]))):
+            if m is None:
+                continue
+            here = m["origin"] is None or m["origin"] == origin()  # an earlier name: was it here?
+            alive = _running(int(m["pid"])) if m["pid"] and here else None
+            if alive:
                 continue
             with contextlib.suppress(OSError):
                 st = e.stat(follow_symlinks=False)
-                if stat.S_ISREG(st.st_mode) and now - st.st_mtime > older_than:
+                dead_here = alive is False and m["origin"] is not None
+                if stat.S_ISREG(st.st_mode) and (dead_here or now - st.st_mtime > older_than):
                     os.remove(e.path)
                     removed.append(e.path)
     return removed
@@ -199,7 +229,7 @@ class AtomicSet:
             self._swept.add(folder)
         base = os.path.basename(target)
         for _ in range(100):
-            tmp = os.path.join(folder, f".{base}.{os.getpid()}-{secrets.token_hex(4)}{TMP_SUFFIX}")
+            tmp = os.path.join(folder, f".{base}.{os.getpid()}@{origin()}-{secrets.token_hex(4)}{TMP_SUFFIX}")
             try:
                 with _signals_deferred():  # a signal between creating and recording it left it behind
                     os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
@@ -265,7 +295,7 @@ def atomic_files(paths: Iterable[str | os.PathLike]) -> Iterator[list[str]]:
 def atomic_write(path: str | os.PathLike) -> Iterator[str]:
     """Yield a temporary path next to ``path``; on success it replaces ``path`` atomically.
 
-    The temporary (``.<name>.<pid>-<random>.phyir.tmp``, same folder, so ``os.replace`` is a rename
+    The temporary (``.<name>.<pid>@<origin>-<random>.phyir.tmp``, same folder, so ``os.replace`` is a rename
     on one file system) exists and is empty when yielded.  If the block raises (including
     KeyboardInterrupt and SIGTERM, which the CLI turns into an exception) it is removed and ``path``
     is left untouched.

@@ -414,6 +414,75 @@ def test_killed_writes_leave_temporaries_no_reader_takes_and_the_next_write_swee
     assert sorted(os.listdir(folder)) == sorted(["a.exr", "d.exr", junk[2].name])
 
 
+# ``phyir predict`` whose set of outputs stops before its renames (the outputs written whole into their
+# temporaries): it prints the temporaries and waits there to be killed
+PAUSED_PREDICT = """
+import sys, time
+from phyir.io import files
+def paused(self):
+    print(" ".join(t for t, _ in self.pairs), flush=True)
+    time.sleep(600)
+files.AtomicSet.commit = paused
+from phyir.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_sigkill_while_predict_writes_then_a_rerun_leaves_no_temporary(tmp_path, pano):
+    """[issue 34] SIGKILL leaves ``phyir predict``'s temporary behind (seconds old); the next run writing
+    into that folder removes it (its process is gone) and writes every output whole."""
+    inputs, out = tmp_path / "in", tmp_path / "out"
+    inputs.mkdir()
+    for name in ("p0.exr", "p1.exr"):
+        os.link(pano, inputs / name)
+    child = subprocess.Popen([sys.executable, "-c", PAUSED_PREDICT, "predict", inputs, "-o", out, "-q"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        written = child.stdout.readline().split()  # p0.exr is in its temporary, not yet renamed
+        assert written and all(os.path.getsize(t) > 0 for t in written), child.stderr.read()
+        child.send_signal(signal.SIGKILL)
+        assert child.wait(timeout=CHILD_TIMEOUT) == -signal.SIGKILL
+    finally:
+        child.kill()
+        child.communicate()
+    left = temporaries(out)
+    assert left == [os.path.basename(t) for t in written] and f".{child.pid}" in left[0]
+    assert os.listdir(out) == left and io.folder_files(out, (".exr",)) == []  # never an input
+
+    proc = phyir("predict", inputs, "-o", out, "-q")
+    assert proc.returncode == 0, proc.stderr
+    assert temporaries(out) == [] and sorted(os.listdir(out)) == ["p0.exr", "p1.exr"]
+    want = io.load_scene(pano)
+    for name in ("p0.exr", "p1.exr"):
+        got = io.load_scene(out / name)
+        for layer in ("image", "depth", "normal", "albedo", "roughness", "metallic", "probes"):
+            assert torch.equal(getattr(got, layer), getattr(want, layer)), (name, layer)
+
+
+def test_the_sweep_removes_a_dead_writers_temporary_at_once_and_waits_for_what_it_cannot_check(tmp_path):
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)
+    here, there = files.origin(), "0" * 8 if files.origin() != "0" * 8 else "1" * 8
+    names = {"dead here": f".a.exr.{dead}@{here}-0123abcd.phyir.tmp",  # killed: goes at once
+             "alive here": f".b.exr.{os.getpid()}@{here}-0123abcd.phyir.tmp",  # kept
+             "elsewhere": f".c.exr.{dead}@{there}-0123abcd.phyir.tmp",  # its pid means nothing here
+             "earlier naming": f".d.exr.{dead}-0123abcd.phyir.tmp"}  # cannot tell where it was written
+    for n in names.values():
+        (tmp_path / n).write_bytes(b"half a file")
+    assert all(files.is_temporary(n) for n in names.values())
+    assert files.sweep_stale(tmp_path) == [str(tmp_path / names["dead here"])]
+    for n in names.values():
+        if (tmp_path / n).exists():
+            os.utime(tmp_path / n, (time.time() - 2 * files.STALE_SECONDS,) * 2)
+    assert sorted(files.sweep_stale(tmp_path)) == sorted(str(tmp_path / names[k])
+                                                        for k in ("elsewhere", "earlier naming"))
+    assert os.listdir(tmp_path) == [names["alive here"]]
+    with AtomicSet() as s:  # what a write names its temporary: this process, this origin
+        tmp = os.path.basename(s.add(tmp_path / "e.exr"))
+        assert files.is_temporary(tmp) and f".{os.getpid()}@{here}-" in tmp
+        s.abort()
+
+
 # ---------------------------------------------------------------------------------------------
 # class 9: messages
 

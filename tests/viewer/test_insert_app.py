@@ -79,6 +79,25 @@ def test_add_drag_layers_delete_and_export(app, tmp_path):
     assert np.array_equal(view_pixels(app), before)
 
 
+def test_view_at_takes_fractions_and_warns_on_the_ceiling(app):
+    """phyir-view --object ... --at as phyir insert takes it: pixels or fractions of the size, and a
+    point on the ceiling hangs the object there with a warning (not an error)."""
+    from phyir.commands import options
+    from viewer.app.cli_objects import ObjectSpec, add_objects
+
+    panel, point = app.objects, options.image_point(1e6)
+    add_objects(app, [ObjectSpec("sphere", at=point("0.3125,0.78125")),
+                      ObjectSpec("sphere", at=(39.5, 49.5))])
+    assert np.allclose(panel.objects[0].position, panel.objects[1].position)  # (128x64: 40, 50)
+    assert not any("ceiling" in m.text for m in app.messages)
+    add_objects(app, [ObjectSpec("sphere", at=point("0.5,0.05"))])
+    last = app.messages[-1]
+    assert last.level == "warning" and "--at 0.5,0.05: the point is on the ceiling" in last.text
+    assert panel.objects[-1].support[1][1] < -0.5
+    while panel.objects:
+        panel.delete(0)
+
+
 def test_click_to_drop_takes_the_click_from_the_probe_pin(app):
     from phyir.insert.objects import PRESETS
 

@@ -129,3 +129,56 @@ def test_perspective_export_has_no_line_at_the_panorama_seam(scene_file, tmp_pat
     d2 = np.abs(g[:, :-2] - 2 * g[:, 1:-1] + g[:, 2:])[keep]
     assert keep.sum() > 1000
     assert d2.max() < 0.02, d2.max()
+
+
+def test_a_ceiling_point_is_warned_about_in_one_line(scene_file, tmp_path, capsys):
+    """--at on the ceiling hangs the object there upside down (a pendant lamp): allowed, but said,
+    naming --at (a row counted in another image size lands near the zenith without a word)."""
+    from phyir.io import load_scene
+
+    H = load_scene(scene_file).size[0]
+    rc = main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.2", "--at", "64,5",
+               "--quality", "draft", "-o", str(tmp_path / "lamp.exr")])
+    assert rc == 0
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert err.startswith("phyir insert: warning: --at 64,5: the point is on the ceiling")
+    assert f"a row over {H // 2} of {H}" in err
+    h = exr.read_headers(tmp_path / "lamp.exr")[0]
+    alpha = exr.read_pixels(tmp_path / "lamp.exr", [h])[0]["object.A"]
+    assert np.nonzero(alpha > 0.5)[0].mean() < H / 4  # drawn where it was put, hanging near the top
+    # on the floor: nothing to say; a path that touches the ceiling: how many of its points do
+    assert main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.2", "--at", "40,50",
+                 "--quality", "draft", "-o", str(tmp_path / "floor.exr")]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.2", "--path", "40,50:64,5",
+                 "--frames", "3", "--quality", "draft", "-o", str(tmp_path / "up.png")]) == 0
+    err = capsys.readouterr().err
+    assert "phyir insert: warning: --path: 1 of 3 points are on the ceiling" in err or \
+        "phyir insert: warning: --path: 2 of 3 points are on the ceiling" in err, err
+
+
+def test_at_takes_pixels_or_fractions_of_the_size(scene_file, tmp_path, capsys):
+    """``--at 0.3125,0.78125`` on the 128x64 room is the point at 40, 50 (pixel 39.5, 49.5 as --at
+    counts them, centres at +0.5): the same picture; ``--help`` says which is which."""
+    from phyir.commands import options
+
+    point = options.image_point(1e6)
+    assert point("0.5,0.78").fraction and point(" 0.0, 1.0").fraction
+    for pixels in ("0,1", "1,0", "0.5,2", "1.5,0.5", "40,50", "1e-1,0.5"):
+        assert not point(pixels).fraction, pixels
+    assert options.to_pixels(point("0.5,0.78"), 1024, 512) == (511.5, pytest.approx(398.86))
+    assert options.to_pixels(point("0.0,0.0"), 128, 64) == (127.5, 0.0)  # the seam: column 0's left edge
+    assert options.to_pixels((40.0, 50.0), 128, 64) == (40.0, 50.0)
+    outs = {}
+    for at in ("0.3125,0.78125", "39.5,49.5"):
+        out = tmp_path / f"{at}.exr"
+        assert main(["insert", str(scene_file), "--object", "sphere", "--scale", "0.25", "--at", at,
+                     "--quality", "draft", "-o", str(out)]) == 0
+        (outs[at],) = exr.read_pixels(out, exr.read_headers(out))
+    assert outs["0.3125,0.78125"]["object.A"].sum() > 10
+    for name in ("R", "G", "B", "object.A"):
+        assert np.array_equal(outs["0.3125,0.78125"][name], outs["39.5,49.5"][name]), name
+    capsys.readouterr()
+    assert main(["insert", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "pixel column U, row V" in text and "fractions of the width and height" in text

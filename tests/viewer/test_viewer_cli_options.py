@@ -94,3 +94,18 @@ def test_camera_inside_an_object_is_an_error_on_the_command_line(scene_file, tmp
                "--object", "sphere", "--position", "0,0,0", "--scale", "0.3"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--object sphere: the camera is inside the object" in err[0]
+
+
+@pytest.mark.parametrize("argv,typo,near", [
+    (["s.exr", "--layr", "depth"], "--layr", "--layer"),
+    (["s.exr", "--object", "sphere", "--att", "1,2"], "--att", "--at"),
+    (["s.exr", "--yaw", "-30", "--pich", "3"], "--pich", "--pitch"),
+])
+def test_a_mistyped_option_suggests_the_nearest(argv, typo, near, capsys):
+    """As phyir's subcommands: the nearest option and phyir-view's --help, in one line."""
+    with pytest.raises(SystemExit) as e:
+        parser().parse_args(argv)
+    assert e.value.code == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert err == (f"phyir-view: error: unrecognized option {typo} (did you mean {near}?) "
+                   "(see phyir-view --help)")

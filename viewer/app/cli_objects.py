@@ -8,6 +8,7 @@ import argparse
 import math
 from dataclasses import dataclass, replace
 
+from phyir.commands import options
 from phyir.errors import PhyIRError
 
 
@@ -16,7 +17,7 @@ class ObjectSpec:
     """One ``--object`` and its options, as given."""
 
     spec: str
-    at: tuple[float, float] | None = None
+    at: tuple[float, float] | None = None  # pixels, or an options.ImagePoint of fractions
     position: tuple[float, float, float] | None = None
     scale: float | None = None  # None: the panel's default (25 cm primitives, meshes in their units)
     material: str = "diffuse"
@@ -55,7 +56,10 @@ class _ObjectAction(argparse.Action):
 
 def _parse(option: str, value: str):
     if option == "--at":
-        return "at", _numbers(value, 2, option)
+        try:
+            return "at", options.image_point(1e6)(value)
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"--at: {e}") from None
     if option == "--position":
         return "position", _numbers(value, 3, option)
     if option == "--scale":
@@ -71,8 +75,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     kw = dict(action=_ObjectAction, dest="objects", default=[])
     g.add_argument("--object", metavar="OBJ", **kw,
                    help="sphere, cube, cylinder or a mesh file (OBJ/PLY/STL/OFF/GLB, metres)")
-    g.add_argument("--at", metavar="U,V", **kw, help="stand it on the surface seen at column U, row V "
-                                                     "(default: in front of the camera, below the horizon)")
+    g.add_argument("--at", metavar="U,V", **kw,
+                   help="stand it on the surface seen at U,V (default: in front of the camera, below the "
+                        "horizon): " + options.POINT_HELP)
     g.add_argument("--position", metavar="X,Y,Z", **kw, help="its centre at this world point (m)")
     g.add_argument("--scale", metavar="S", **kw,
                    help="size: primitives' radius / half-extent in m (default 0.25); meshes: a factor (1)")
@@ -84,7 +89,7 @@ def add_objects(app, specs: list[ObjectSpec]) -> None:
     """Insert ``specs`` into the app's scene (it has depth and probes); one-line errors naming the option."""
     from phyir.insert import views
     from phyir.insert.objects import parse_material
-    from phyir.insert.placement import camera_inside
+    from phyir.insert.placement import camera_inside, ceiling_warning, on_ceiling
 
     if specs and not app.objects.sync():
         raise PhyIRError(f"{app.name}: --object needs the scene's depth and probes "
@@ -93,8 +98,12 @@ def add_objects(app, specs: list[ObjectSpec]) -> None:
         material = parse_material(s.material)
         obj = app.objects.add(s.spec, material=material, scale=s.scale)
         if s.at is not None or s.position is not None:
-            views.place_object(obj, app.objects.scene(), at=s.at, position=s.position,
+            H, W = app.objects.scene().size
+            at = options.to_pixels(s.at, W, H) if s.at is not None else None
+            views.place_object(obj, app.objects.scene(), at=at, position=s.position,
                                log=lambda text: app.note("warning", text))
+            if at is not None and on_ceiling(obj.support):
+                app.note("warning", ceiling_warning(f"--object {s.spec} --at {s.at[0]:g},{s.at[1]:g}", H))
         problem = camera_inside([obj])
         if problem:
             raise PhyIRError(f"--object {s.spec}: {problem}")

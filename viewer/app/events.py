@@ -60,6 +60,7 @@ class WorkerEvents:
     def _geometry_confidence(self) -> None:
         """How far to trust the scene's geometry (phyir.evaluation.real.scene_confidence), for the status
         bar; a warning when it is flagged."""
+        from phyir.commands.info import format_confidence
         from phyir.evaluation.real import scene_confidence
 
         sc = self.scene
@@ -69,9 +70,10 @@ class WorkerEvents:
         c = scene_confidence(sc)
         self.confidence = float(c["confidence"])
         if c["flagged"]:
-            self.note("warning", f"geometry confidence {self.confidence:.2f}: the floor below the camera "
-                                 f"is {100 * float(c['nadir_up']):.0f}% floor-like and normals and depth "
-                                 f"disagree by {float(c['consistency_deg']):.0f}°; insertions may be off")
+            self.note("warning", f"geometry confidence {format_confidence(self.confidence)}: the floor "
+                                 f"below the camera is {100 * float(c['nadir_up']):.0f}% floor-like and "
+                                 f"normals and depth disagree by {float(c['consistency_deg']):.0f}°; "
+                                 "insertions may be off")
 
     def _on_gt(self, event: GroundTruth) -> None:
         gt = event.scene

@@ -26,9 +26,9 @@ PIXEL = 1e6  # --at / --path coordinates: finite; the panorama's size is checked
 MAX_FRAMES = 1000
 
 
-def _path(text: str) -> list[tuple[float, ...]]:
-    """``U1,V1:U2,V2[:...]``: at least two points of two finite numbers."""
-    point = options.numbers(2, -PIXEL, PIXEL, "U,V")
+def _path(text: str) -> list[options.ImagePoint]:
+    """``U1,V1:U2,V2[:...]``: at least two points, each as ``--at`` takes it (pixels or fractions)."""
+    point = options.image_point(PIXEL)
     points = [point(p) for p in text.split(":")]
     if len(points) < 2:
         raise argparse.ArgumentTypeError(f"expected at least two points U1,V1:U2,V2, got {text!r}")
@@ -42,11 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--object", required=True, metavar="OBJ",
         help="sphere (radius 1), cube ([-1,1]^3), cylinder, or a mesh file (OBJ/PLY/STL/OFF/GLB, metres)")
     where = parser.add_mutually_exclusive_group().add_argument
-    where("--at", metavar="U,V", type=options.numbers(2, -PIXEL, PIXEL, "U,V"),
-          help="stand the object on the surface seen at pixel column U, row V")
+    where("--at", metavar="U,V", type=options.image_point(PIXEL),
+          help="stand the object on the surface seen at U,V: " + options.POINT_HELP + "; on a ceiling "
+               "it hangs upside down (warned)")
     where("--position", metavar="X,Y,Z", type=options.numbers(3, -POSITION, POSITION, "X,Y,Z"),
           help=f"put the object's centre at this world point (m, each within +-{POSITION:g})")
-    where("--path", metavar="U1,V1:U2,V2", type=_path, help="move the object along these pixels (--frames)")
+    where("--path", metavar="U1,V1:U2,V2", type=_path,
+          help="move the object along these points (--frames), each as --at takes it")
     add("--frames", type=options.number(2, MAX_FRAMES, integer=True), default=24,
         help=f"frames along --path (2..{MAX_FRAMES}, default 24)")
     add("--scale", type=options.number(*SCALE), default=None,
@@ -90,9 +92,10 @@ def _placements(obj, scene, args) -> tuple[str, list[tuple]]:
 
     H, W = scene.size
     if args.path:
-        option, points = "--path", views.path_points(args.path, args.frames, W, H)
+        waypoints = [options.to_pixels(p, W, H) for p in args.path]
+        option, points = "--path", views.path_points(waypoints, args.frames, W, H)
     elif args.at:
-        option, points = "--at", [args.at]
+        option, points = "--at", [options.to_pixels(args.at, W, H)]
     elif args.position:
         option, points = "--position", None
     else:
@@ -106,6 +109,18 @@ def _placements(obj, scene, args) -> tuple[str, list[tuple]]:
             raise InputError(option, f"{inside} (--scale)")
         out.append((obj.position.copy(), obj.rotation.copy(), obj.support))
     return option, out
+
+
+def _ceiling_warning(option: str, poses: list[tuple], height: int, args: argparse.Namespace) -> str | None:
+    """Placements on the ceiling hang the object there: warned about once the render is written, not
+    refused (the comment at phyir.insert.placement.CEILING_COS says why)."""
+    from phyir.insert import placement
+
+    hanging = sum(placement.on_ceiling(support) for _, _, support in poses)
+    if not hanging or option == "--position":  # (a --position rests on nothing: it is where it was put)
+        return None
+    given = f"--at {args.at[0]:g},{args.at[1]:g}" if option == "--at" else option
+    return placement.ceiling_warning(given, height, hanging, len(poses))
 
 
 def _check_outputs_spare_the_input(args: argparse.Namespace) -> None:
@@ -133,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     scene = views.load_insert_scene(args.input, weights=args.weights)
     obj = views.make_object(args.object, args.scale, args.material)
     option, poses = _placements(obj, scene, args)
+    ceiling = _ceiling_warning(option, poses, scene.size[0], args)
     spec = views.ViewSpec(args.view, args.size, args.fov, args.yaw, args.pitch)
     views.check_render_size(spec.build(scene, obj.bounding_sphere()[0])[1], pano_size=scene.size)
     ctx = gl_context()
@@ -162,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         if args.path is None:
             out, _, size = render(poses[0])
             files = views.write_passes(out, args.out, args.exposure, meta)
+            _warn(ceiling)
             _warn(problems[0] if problems else None, f"{option}: ")
             print(f"wrote {', '.join(files)} ({size[0]}x{size[1]}, {time.perf_counter() - t0:.1f} s)")
             return 0
@@ -173,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
                 yield out
 
         stats = views.write_animation(frames(), args.out, args.exposure)
+        _warn(ceiling)
         if problems:
             _warn(f"{len(problems)} of {len(poses)} frames: {problems[0]}", "--path: ")
         print(f"wrote {len(poses)} frames, {args.out.rsplit('.', 1)[0]}.gif; static background change "

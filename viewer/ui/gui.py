@@ -63,6 +63,7 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self._dragged = False
         self._split_drag = False  # the split view's divide is being dragged
         self._show_help = False
+        self.help_lines: list[tuple[str, float, float]] = []  # the help window's (text, x, y), for tests
         self._lut_cache: dict[str, np.ndarray] = {}
         self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
         self.quit_requested = False

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from viewer.layers import LAYERS
 from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS
+from viewer.ui.object_keys import handle_object_keys
 from viewer.ui.widgets import FLAGS_FIXED, col32, fmt_number, imgui
 
 VALUES_ZOOM = 56.0     # logical px per panorama pixel above which pixel values are printed
@@ -100,6 +101,7 @@ class ViewInput:
         K = imgui.Key
         pressed = imgui.is_key_pressed
         shift = io.key_shift
+        handle_object_keys(app.objects, shift, io.key_ctrl)  # viewer.ui.object_keys
         if io.key_ctrl:
             if pressed(K.o):
                 self.open_dialog()

@@ -11,6 +11,7 @@ from phyir.errors import PhyIRError
 from viewer.compare import MODES
 from viewer.layers import KEYS, LAYERS
 from viewer.ui.images_panel import MODE_NAMES
+from viewer.ui.object_keys import OBJECT_KEYS, OBJECT_MOUSE
 from viewer.ui.widgets import imgui
 
 
@@ -158,38 +159,93 @@ class MenuBar:
             glfw.set_window_should_close(self.app.window, True)
 
     def _help_window(self) -> None:
-        imgui.set_next_window_size(imgui.ImVec2(430 * self.scale, 0), imgui.Cond_.appearing)
-        opened, keep = imgui.begin("Keys and mouse", True)
+        """Every key and mouse action, in sections laid out in two columns, the window sized to them
+        (at 1x it fits a 1394x556 window) and centred on the view; ``help_lines`` keeps each line
+        drawn and where (screen px), for tests."""
+        s, sc = self.fb_scale, self.scale
+        x, y, w, h = self.app.view_rect()
+        imgui.set_next_window_pos(imgui.ImVec2((x + w / 2) / s, (y + h / 2) / s), imgui.Cond_.always,
+                                  imgui.ImVec2(0.5, 0.5))
+        flags = (imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_collapse
+                 | imgui.WindowFlags_.no_saved_settings)
+        opened, keep = imgui.begin("Keys and mouse", True, flags)
+        self.help_lines = []
         if opened:
-            for k, t in HELP:
-                imgui.text(f"{k:<16}{t}")
+            sections = help_sections()
+            key_w = max(imgui.calc_text_size(k).x for _, rows in sections for k, _ in rows) + 12 * sc
+            for c, column in enumerate(_columns(sections, 2)):
+                if c:
+                    imgui.same_line(0.0, 28 * sc)
+                imgui.begin_group()
+                for n, (title, rows) in enumerate(column):
+                    if n:
+                        imgui.spacing()
+                    self._help_line(title, disabled=True)
+                    for keys, what in rows:
+                        self._help_line(keys)
+                        imgui.same_line(key_w)  # from the group's left edge
+                        self._help_line(what)
+                imgui.end_group()
         imgui.end()
         if not keep:
             self._show_help = False
 
+    def _help_line(self, text: str, disabled: bool = False) -> None:
+        p = imgui.get_cursor_screen_pos()
+        (imgui.text_disabled if disabled else imgui.text)(text)
+        self.help_lines.append((text, p.x, p.y))
+
 
 HELP = (
-    ("1-9, 0, -", "layers: " + ", ".join(LAYERS)),
-    ("G", "prediction / ground truth"),
-    ("] / [", "next / previous image (also PageDown / PageUp)"),
-    ("Shift+R", "the image shown is the reference (again: none)"),
-    ("D / Shift+D", "compare with the reference: diff, reldiff, sqerr, split, off"),
-    ("drag the line", "split view: move the divide"),
-    ("Ctrl+W", "close the image shown"),
-    ("E / Shift+E", "exposure +/- 0.5 EV"),
-    ("O / Shift+O", "offset +/- 0.05"),
-    ("R", "reset exposure and offset"),
-    ("T / C", "next tone map / colour map"),
-    ("F / Z", "fit / 1:1 (equirect view)"),
-    ("V", "equirect / perspective view"),
-    ("drag", "pan (equirect) / look around"),
-    ("wheel", "zoom (equirect) / field of view"),
-    ("click", "pin the probe under the mouse"),
-    ("Backspace", "remove the last probe"),
-    ("Esc", "dismiss the error / cancel the model"),
-    ("Ctrl+O", "open files, added to the images (or drop them on the window)"),
-    ("X / Shift+X", "channel: RGB, R, G, B, luminance"),
-    ("Ctrl+R", "reload the file (File menu: also whenever it changes)"),
-    ("F12", "save a screenshot next to the file"),
-    ("H", "this help"),
+    ("Layers and display", (
+        ("1-9, 0, -", "layers (numbered in the side panel)"),
+        ("G", "prediction / ground truth"),
+        ("E / Shift+E", "exposure +/- 0.5 EV"),
+        ("O / Shift+O", "offset +/- 0.05"),
+        ("R", "reset exposure and offset"),
+        ("T / C", "next tone map / colour map"),
+        ("X / Shift+X", "channel: RGB, R, G, B, luminance"),
+    )),
+    ("View and probes", (
+        ("F / Z", "fit / 1:1 (equirect view)"),
+        ("V", "equirect / perspective view"),
+        ("drag", "pan (equirect) / look around"),
+        ("wheel", "zoom (equirect) / field of view"),
+        ("click", "pin the probe under the mouse"),
+        ("Backspace", "remove the last probe (also Delete)"),
+    )),
+    ("Images and comparison", (
+        ("] / [", "next / previous image (PageDown / PageUp)"),
+        ("Shift+R", "the image shown is the reference (again: none)"),
+        ("D / Shift+D", "compare: diff, reldiff, sqerr, split, off"),
+        ("drag the line", "split view: move the divide"),
+    )),
+    ("Files and the app", (
+        ("Ctrl+O", "open files (or drop them on the window)"),
+        ("Ctrl+W", "close the image shown"),
+        ("Ctrl+R", "reload the file (File menu: on every change)"),
+        ("F12", "save a screenshot next to the file"),
+        ("Esc", "dismiss the error / cancel the model"),
+        ("Ctrl+Q", "quit"),
+        ("H", "this help"),
+    )),
 )
+
+
+def help_sections() -> list[tuple[str, tuple[tuple[str, str], ...]]]:
+    """The help window's sections: :data:`HELP`, then the objects' mouse actions and every key of
+    :data:`viewer.ui.object_keys.OBJECT_KEYS` (read from the bindings themselves)."""
+    objects = OBJECT_MOUSE + tuple((k.label, k.help) for k in OBJECT_KEYS)
+    return [*HELP, ("Inserted objects (side panel: Objects)", objects)]
+
+
+def _columns(sections: list, n: int) -> list[list]:
+    """``sections`` in order over ``n`` columns of about the same number of lines."""
+    sizes = [len(rows) + 2 for _, rows in sections]  # + the title and the space before it
+    target, out, count = sum(sizes) / n, [[]], 0
+    for section, size in zip(sections, sizes):
+        if out[-1] and count + size / 2 > target * len(out) and len(out) < n:
+            out.append([])
+        out[-1].append(section)
+        count += size
+    return out

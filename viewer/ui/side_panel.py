@@ -25,7 +25,7 @@ class SidePanel:
         imgui.set_next_window_pos(imgui.ImVec2(W - pw, top))
         imgui.set_next_window_size(imgui.ImVec2(pw, H - 2 * top))
         imgui.begin("##panel", None, FLAGS_FIXED)
-        imgui.text(app.name or "(no file)")
+        imgui.text_wrapped(app.name or "(no file)")  # long names wrap: nothing is cut at the right
         if app.busy:
             frac, text = app.progress or (None, "")
             if frac is None:  # indeterminate: a moving bar
@@ -209,7 +209,7 @@ class SidePanel:
         lon = 360 * u / W - 180
         lat = 90 - 180 * v / H
         d = self._direction(u, v)
-        imgui.text(f"pixel col {int(u)}, row {int(v)}   (u {u:.1f}, v {v:.1f})")
+        imgui.text_wrapped(f"pixel col {int(u)}, row {int(v)}  (u {u:.1f}, v {v:.1f})")
         imgui.text(f"lon {lon:+.2f}, lat {lat:+.2f} deg")
         imgui.text(f"dir ({d[0]:+.3f}, {d[1]:+.3f}, {d[2]:+.3f})")
         sources = [("pred", app.arrays)] + ([("gt", app.gt_arrays)] if app.gt is not None else [])
@@ -293,7 +293,8 @@ class SidePanel:
                 imgui.set_scroll_here_y(1.0)
                 self.scroll_to_pin = None
             if pin.block is not None:
-                imgui.text(f"grid cell (row {pin.block[0]}, col {pin.block[1]}), bilinear between cells")
+                row, col = pin.block
+                imgui.text_wrapped(f"grid cell row {row}, col {col} (bilinear between cells)")
             if pin.position is not None:
                 x, y, z = pin.position
                 imgui.text(f"probe at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m")

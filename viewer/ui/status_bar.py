@@ -3,6 +3,7 @@ last message) and the error banner."""
 
 from __future__ import annotations
 
+from phyir.commands.info import format_confidence
 from viewer.ui.widgets import ERROR_BG, FLAGS_FIXED, LEVEL_COLOURS, fmt_value, imgui
 
 
@@ -16,25 +17,8 @@ class StatusBar:
         imgui.set_next_window_size(imgui.ImVec2(W, bh))
         imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(6 * self.scale, 3 * self.scale))
         imgui.begin("##status", None, FLAGS_FIXED | imgui.WindowFlags_.no_scrollbar)
-        parts = []
-        if len(app.images) > 1:
-            parts.append(f"image {app.current + 1}/{len(app.images)} {app.image_label(app.entry)}")
-        if app.compare_mode is not None and app.reference is not None:
-            parts.append(f"{app.compare_mode} vs {app.image_label(app.reference)}")
-        if app.hover is not None and app.size is not None:
-            u, v = app.hover
-            vals = app.pin_values(u, v).get(app.layer)
-            parts.append(f"col {int(u)} row {int(v)}")
-            if vals is not None:
-                parts.append(f"{app.layer} {fmt_value(vals)}")
-        if app.confidence is not None:
-            parts.append(f"geometry confidence {app.confidence:.2f}")
-        if app.frame_times:
-            parts.append(f"frame {1000 * app.frame_times[-1]:.0f} ms")
-        if app.busy and app.job_frames:
-            parts.append(f"longest frame while busy {1000 * app.job_max_frame:.0f} ms")
         last = app.messages[-1] if app.messages else None
-        imgui.text("   ".join(parts))
+        imgui.text(status_text(app))
         if app.objects_problem:  # stays while it holds, whatever the last message
             imgui.same_line()
             imgui.text_colored(imgui.ImVec4(*LEVEL_COLOURS["warning"]), "  camera inside an object")
@@ -65,3 +49,26 @@ class StatusBar:
             app.error = None
         imgui.end()
         imgui.pop_style_color()
+
+
+def status_text(app) -> str:
+    """The status bar's text (before the last message): the image, the comparison, the pixel under
+    the mouse and its value, the geometry confidence (as ``phyir info`` writes it), frame times."""
+    parts = []
+    if len(app.images) > 1:
+        parts.append(f"image {app.current + 1}/{len(app.images)} {app.image_label(app.entry)}")
+    if app.compare_mode is not None and app.reference is not None:
+        parts.append(f"{app.compare_mode} vs {app.image_label(app.reference)}")
+    if app.hover is not None and app.size is not None:
+        u, v = app.hover
+        vals = app.pin_values(u, v).get(app.layer)
+        parts.append(f"col {int(u)} row {int(v)}")
+        if vals is not None:
+            parts.append(f"{app.layer} {fmt_value(vals)}")
+    if app.confidence is not None:
+        parts.append(f"geometry confidence {format_confidence(app.confidence)}")
+    if app.frame_times:
+        parts.append(f"frame {1000 * app.frame_times[-1]:.0f} ms")
+    if app.busy and app.job_frames:
+        parts.append(f"longest frame while busy {1000 * app.job_max_frame:.0f} ms")
+    return "   ".join(parts)
