@@ -279,7 +279,8 @@ class Worker:
 JOB_MODULES = ("numpy.ma", "phyir.io", "phyir.io.exr", "phyir.io.ldr", "phyir.io.rgbe", "phyir.inference",
                "phyir.learn.weights", "phyir.nets.model", "phyir.learn.datasets", "safetensors",
                "safetensors.torch", "phyir.io.files", "torch.utils._device",  # (weights: meta device)
-               "phyir.shading.render")
+               "phyir.shading.render",
+               "phyir.lighting.fusion")  # the default lighting method's (phyir.lighting.methods.fused)
 
 
 def preload() -> None:
