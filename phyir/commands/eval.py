@@ -51,6 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scanned rooms with ground-truth depth (rgb.* + depth.npy/.exr/16-bit .png "
                              "per room): the field's depth protocol, normals, the constant-depth baseline "
                              "(phyir.evaluation.real_depth)")
+    parser.add_argument("--ldr-light", nargs="+", metavar="HDR",
+                        help="HDR panoramas (files or folders): their auto-exposed 8-bit copies' light "
+                             "recovered by each method (naive, gain, clipnet) against the HDR, at the camera "
+                             "and per clipped region (phyir.evaluation.ldr_light)")
     parser.add_argument("--sheet", metavar="PNG", type=options.path,
                         help="--real, --scans: write a contact sheet of the rooms")
     parser.add_argument("--lighting", choices=predict_cmd.lighting_methods().names(),
@@ -128,6 +132,12 @@ def run(args: argparse.Namespace) -> int:
         return run_real(args)
     if getattr(args, "scans", None):
         return run_scans(args)
+    if getattr(args, "ldr_light", None):
+        from phyir.evaluation.ldr_light import evaluate_ldr_light, markdown_ldr_light
+
+        results = evaluate_ldr_light(args.ldr_light, log=lambda s: print(s, file=sys.stderr, flush=True))
+        write_outputs(args, results, markdown_ldr_light(results))
+        return 0
     if bool(args.data) == bool(args.predictions):
         raise PhyIRError("give either prediction files with --gt, or --data (run the model)")
     if args.data:

@@ -42,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"))
     p.add_argument("--no-amp", dest="amp", action="store_const", const=False, help="disable mixed precision")
     p.add_argument("--no-augment", dest="augment", action="store_const", const=False)
+    p.add_argument("--ldr-share", type=types.finite,
+                   help="share of training images photographed by a random camera, 8-bit (default 0.3)")
     p.add_argument("--no-val", dest="val", action="store_const", const=False)
     p.add_argument("--max-minutes", type=types.finite,
                    help="stop with a checkpoint after this many minutes")
@@ -76,8 +78,8 @@ def options(args: argparse.Namespace) -> dict:
 
     opts = load_config_file(args.config) if args.config else {}
     keys = ("data", "stage", "out", "model", "init", "epochs", "lr", "batch_size", "size", "probe_grid",
-            "schedule", "seed", "workers", "device", "amp", "augment", "val", "max_minutes", "max_steps",
-            "ckpt_every", "cache", "limit_train", "limit_val", "progress", "train_only", "reinit")
+            "schedule", "seed", "workers", "device", "amp", "augment", "ldr_share", "val", "max_minutes",
+            "max_steps", "ckpt_every", "cache", "limit_train", "limit_val", "progress", "train_only", "reinit")
     for k in keys:
         v = getattr(args, k, None)
         if v is not None:

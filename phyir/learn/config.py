@@ -42,6 +42,7 @@ BOUNDS: dict[str, tuple[float, float, bool]] = {
     "grad_clip": (0.0, 1e9, False), "seed": (0, 2**63 - 1, True), "workers": (0, 256, True),
     "max_minutes": (1e-3, 1e8, False), "max_steps": (1, 10**12, True), "ckpt_every": (1, 10**12, True),
     "log_every": (1, 10**12, True), "limit_train": (1, 10**12, True), "limit_val": (1, 10**12, True),
+    "ldr_share": (0.0, 1.0, False),
 }
 MAX_TRAIN_SIZE = (1024, 2048)  # training resolution (multiples of 32, the encoder's stride)
 MAX_TRAIN_SIDE = 4096  # probe grid, per side
@@ -54,7 +55,8 @@ CHOICES = {"schedule": ("constant", "cosine"), "device": ("auto", "cpu", "cuda")
 # options that change what a resumed run computes: resuming with other values is refused
 # (epochs may grow: a stage can be continued)
 RESUME_FIXED = ("stage", "model", "init", "lr", "batch_size", "size", "probe_grid", "schedule",
-                "grad_clip", "seed", "augment", "limit_train", "loss", "train_only", "reinit", "weights")
+                "grad_clip", "seed", "augment", "ldr_share", "limit_train", "loss", "train_only", "reinit",
+                "weights")
 
 
 _STRINGS = ("data", "stage", "out", "model", "init", "schedule", "device")  # TrainConfig's text fields
@@ -114,6 +116,7 @@ class TrainConfig:
     grad_clip: float = 10.0
     seed: int = 0
     augment: bool = True
+    ldr_share: float = 0.3  # share of training images photographed by a random camera (8-bit LDR)
     workers: int = 0
     device: str = "auto"  # auto | cpu | cuda
     amp: bool = True  # mixed precision (CUDA only)

@@ -100,7 +100,7 @@ def make_datasets(cfg: TrainConfig, need_probes: bool):
 
     if not cfg.data:
         raise PhyIRError("no dataset: pass --data DIR (a folder written by `phyir synth`)")
-    aug = Augment() if cfg.augment else None
+    aug = Augment(p_ldr=cfg.ldr_share) if cfg.augment else None
     kw = {"size": cfg.size, "probe_grid": cfg.probe_grid, "seed": cfg.seed}
     if cfg.cache:
         import hashlib

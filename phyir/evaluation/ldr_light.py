@@ -1,0 +1,142 @@
+"""HDR light from an 8-bit panorama, measured against the HDR panorama it was photographed from.
+
+Each HDR panorama is photographed by the evaluation's camera (:func:`phyir.evaluation.real.ldr_copy`:
+auto-exposed to median 0.18, clipped, 8-bit sRGB) and its light recovered by each method of
+:data:`METHODS`: ``naive`` (the LDR as it is), ``gain`` (one calibrated gain per clipped region,
+:mod:`phyir.lighting.hdr_recovery`) and ``clipnet`` (:mod:`phyir.lighting.ldr_to_hdr`, where its
+weights are present). Against the truth (the HDR in the LDR's units):
+
+* spheres at the camera (:mod:`phyir.evaluation.real_lighting`'s protocol sphere lit by the whole
+  panorama as distant light, no parallax, so what is measured is the recovery alone): diffuse,
+  matte silver and mirror silver rel L1, the scale-invariant rel L1, the intensity ratio and the
+  colour error;
+* the clipped regions (8-connected, :func:`phyir.lighting.hdr_recovery.clipped_regions`): the
+  recovered / true energy of each region and the share within a factor of 2 (``regions_within_2x``,
+  regions under :data:`MIN_REGION_SR` steradians left out), and the mean |log luminance| error over
+  the clipped pixels (``clipped_log_err``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import luminance
+from phyir.evaluation import real_lighting as RL
+
+MIN_REGION_SR = 1e-4  # steradians: smaller clipped regions (a few pixels at 1k) are not counted
+SPHERE_KEYS = ("rel_l1", "si_rel_l1", "ratio", "colour_deg")
+
+
+def _naive(ldr: Tensor) -> Tensor:
+    return ldr
+
+
+def _gain(ldr: Tensor) -> Tensor:
+    from phyir.lighting.hdr_recovery import recover_clipped
+
+    return recover_clipped(ldr)[0]
+
+
+def _clipnet(ldr: Tensor) -> Tensor:
+    from phyir.lighting.ldr_to_hdr import load_clipnet, recover
+
+    return recover(ldr, load_clipnet())[0]
+
+
+def methods() -> dict[str, Callable[[Tensor], Tensor]]:
+    """The recoveries measured: naive, gain and, where its weights are present, clipnet."""
+    from phyir.lighting.ldr_to_hdr import load_clipnet
+
+    out = {"naive": _naive, "gain": _gain}
+    if load_clipnet() is not None:
+        out["clipnet"] = _clipnet
+    return out
+
+
+def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, float]:
+    """Energy ratios of the clipped regions and the log error over the clipped pixels."""
+    from phyir.lighting.hdr_recovery import clipped_regions
+
+    H, W = ldr.shape[-2:]
+    clipped, labels, n = clipped_regions(ldr)
+    if not bool(clipped.any()):
+        return {"clipped_sr": 0.0}
+    omega = pano.solid_angles(H, W)
+    lr, lt = luminance(recovered.float()), luminance(truth.float())
+    ratios = []
+    for k in range(n):
+        m = labels == k
+        if float(omega[m].sum()) >= MIN_REGION_SR:
+            ratios.append(float((lr[m] * omega[m]).sum() / (lt[m] * omega[m]).sum().clamp_min(1e-30)))
+    w = omega[clipped]
+    err = (torch.log(lr[clipped] + 1e-4) - torch.log(lt[clipped] + 1e-4)).abs()
+    out = {"clipped_sr": float(w.sum()), "clipped_log_err": float((err * w).sum() / w.sum()),
+           "regions": float(len(ratios))}
+    if ratios:
+        out |= {"regions_within_2x": sum(0.5 <= r <= 2 for r in ratios) / len(ratios),
+                "region_ratio_median": statistics.median(ratios)}
+    return out
+
+
+def evaluate_panorama(path: str | os.PathLike) -> dict[str, dict[str, float]]:
+    """``{method: metrics}`` of one HDR panorama (module doc)."""
+    from phyir.evaluation.real import ldr_copy
+    from phyir.io import load_panorama
+
+    hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
+    ldr, scale = ldr_copy(hdr)
+    truth = hdr * scale
+    envs = {name: fn(ldr) for name, fn in methods().items()}
+    stack = torch.stack([pano.resize_area(e.float(), *RL.INTEGRATION_SIZE) for e in (truth, *envs.values())])
+    rows: dict[str, dict[str, float]] = {name: {} for name in envs}
+    for mat in RL.MATERIALS:
+        if mat.startswith("mirror"):
+            continue  # a mirror at the camera shows the panorama itself: the region rows measure that
+        px, _ = RL.render_sphere(stack, mat)  # distant light: the place only sets the view
+        for i, name in enumerate(envs):
+            m = RL.sphere_metrics(px[1 + i], px[0])
+            rows[name] |= {f"{mat}.{k}": m[k] for k in SPHERE_KEYS}
+    for name, env in envs.items():
+        rows[name] |= region_rows(ldr, env, truth)
+    return rows
+
+
+def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None] | None = None) -> dict:
+    """:func:`evaluate_panorama` on HDR panoramas (files, or folders of them); ``{"<name>/<method>":
+    metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere."""
+    from phyir.evaluation.real import panorama_files
+
+    files = [f for p in paths for f in (panorama_files(p) if Path(p).is_dir() else [Path(p)])]
+    files = [f for f in files if f.suffix.lower() in (".hdr", ".exr")]
+    out: dict[str, dict[str, float]] = {}
+    for f in files:
+        for name, row in evaluate_panorama(f).items():
+            out[f"{f.stem}/{name}"] = row
+        if log is not None:
+            d = {k.split("/")[1]: v["diffuse.rel_l1"] for k, v in out.items() if k.startswith(f"{f.stem}/")}
+            log(f"{f.stem}: diffuse rel L1 " + ", ".join(f"{k} {v:.3f}" for k, v in d.items()))
+    names = sorted({k.split("/")[1] for k in out})
+    for name in names:
+        rows = [v for k, v in out.items() if k.endswith(f"/{name}")]
+        keys = sorted({k for r in rows for k in r})
+        med = {k: statistics.median([r[k] for r in rows if k in r and not math.isnan(r[k])]) for k in keys}
+        ratios = [r["diffuse.ratio"] for r in rows]
+        med |= {"diffuse.ratio_min": min(ratios), "diffuse.ratio_max": max(ratios)}
+        out[f"median/{name}"] = med
+    return out
+
+
+def markdown_ldr_light(results: dict) -> str:
+    from phyir.metrics import markdown_table
+
+    keys = ["diffuse.rel_l1", "diffuse.ratio", "diffuse.colour_deg", "matte_silver.rel_l1",
+            "regions_within_2x", "region_ratio_median", "clipped_log_err"]
+    return markdown_table(results, keys, digits=3)
