@@ -79,7 +79,8 @@ def options(args: argparse.Namespace) -> dict:
     opts = load_config_file(args.config) if args.config else {}
     keys = ("data", "stage", "out", "model", "init", "epochs", "lr", "batch_size", "size", "probe_grid",
             "schedule", "seed", "workers", "device", "amp", "augment", "ldr_share", "val", "max_minutes",
-            "max_steps", "ckpt_every", "cache", "limit_train", "limit_val", "progress", "train_only", "reinit")
+            "max_steps", "ckpt_every", "cache", "limit_train", "limit_val", "progress", "train_only",
+            "reinit")
     for k in keys:
         v = getattr(args, k, None)
         if v is not None:
