@@ -459,10 +459,19 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
 
 
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
-    """An LDR input's clipped regions given their light back (:mod:`phyir.lighting.hdr_recovery`)."""
-    from phyir.lighting.hdr_recovery import recover_clipped
+    """An LDR input's clipped regions given their light back: by ClipNet where its weights are
+    shipped (:mod:`phyir.lighting.ldr_to_hdr`), else by the calibrated gain per region
+    (:mod:`phyir.lighting.hdr_recovery`)."""
+    from phyir.lighting.hdr_recovery import Recovery, clipped_regions, recover_clipped
+    from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
-    image, rec = recover_clipped(out.image)
+    model = load_clipnet()
+    if model is not None:
+        _, _, regions = clipped_regions(out.image.float())
+        image, sr, gain = recover(out.image, model)
+        rec = Recovery(regions, sr, gain, "clipnet")
+    else:
+        image, rec = recover_clipped(out.image)
     if rec.regions:
         out.image = image
         report.hdr_recovery = rec
@@ -484,8 +493,8 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
         out.meta["predict.gm_pass"] = report.gm_pass
     if report.hdr_recovery is not None:
         rec = report.hdr_recovery
-        out.meta["predict.hdr_recovery"] = (f"{rec.regions} clipped regions ({rec.solid_angle:.3g} sr) "
-                                            f"brightened; energy x{rec.energy_gain:.3g}")
+        out.meta["predict.hdr_recovery"] = (f"{rec.method}: {rec.regions} clipped regions "
+                                            f"({rec.solid_angle:.3g} sr) brightened; energy x{rec.energy_gain:.3g}")
     if report.normals_from:
         out.meta["predict.normals"] = report.normals_from
         out.meta["predict.normals_away"] = f"{report.normals_away:.4f}"

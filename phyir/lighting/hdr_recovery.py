@@ -40,6 +40,7 @@ class Recovery:
     regions: int
     solid_angle: float  # steradians of clipped pixels
     energy_gain: float  # luminous energy of the panorama after / before
+    method: str = "gain"  # "gain" (this module) or "clipnet" (phyir.lighting.ldr_to_hdr)
 
 
 def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Tensor, int]:

@@ -98,3 +98,20 @@ def test_recover_at_full_size_and_weights_round_trip(tmp_path):
     assert L.load_clipnet(tmp_path / "missing.safetensors") is None
     const = L.upsample_wrapped(torch.full((1, 1, 8, 16), 2.0), 24, 48)
     torch.testing.assert_close(const, torch.full((1, 1, 24, 48), 2.0))
+
+
+def test_predict_uses_clipnet_where_its_weights_are(tmp_path, monkeypatch):
+    import phyir
+    from phyir.nets import ModelConfig, PhyIRModel
+
+    torch.manual_seed(2)
+    model = PhyIRModel(ModelConfig.named("lite", probe_size=(8, 16))).eval()
+    ldr = lamp_panorama(64, 128).clamp(0, 1)
+    gain = phyir.predict(ldr, model=model, hdr=False, outputs=("depth",), probes=None)
+    assert gain.meta["predict.hdr_recovery"].startswith("gain:")
+    monkeypatch.setattr(L, "WEIGHTS", L.save_clipnet(ClipNet().eval(), tmp_path / "c.safetensors", {}))
+    learned = phyir.predict(ldr, model=model, hdr=False, outputs=("depth",), probes=None)
+    assert learned.meta["predict.hdr_recovery"].startswith("clipnet: 1 clipped regions")
+    unclipped = ldr.amax(0) < CLIP_START
+    assert torch.equal(learned.image[:, unclipped], ldr[:, unclipped])
+    assert float(learned.image[:, 6:10, 20:24].min()) >= 1.0
