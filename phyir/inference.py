@@ -494,7 +494,8 @@ def _write_meta(out: PanoScene, report: PredictReport, weights: str | os.PathLik
     if report.hdr_recovery is not None:
         rec = report.hdr_recovery
         out.meta["predict.hdr_recovery"] = (f"{rec.method}: {rec.regions} clipped regions "
-                                            f"({rec.solid_angle:.3g} sr) brightened; energy x{rec.energy_gain:.3g}")
+                                            f"({rec.solid_angle:.3g} sr) brightened; "
+                                            f"energy x{rec.energy_gain:.3g}")
     if report.normals_from:
         out.meta["predict.normals"] = report.normals_from
         out.meta["predict.normals_away"] = f"{report.normals_away:.4f}"
