@@ -20,6 +20,7 @@ ran, what was reused and how long each stage took are recorded in ``scene.meta``
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -432,27 +433,24 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
     pts = None if opts.probes == "grid" else opts.points.reshape(-1, 3).float().cpu()
     lnet = lnet_grid if pts is None else lnet_probes_at(lnet_grid, pts)
     method = plan.lighting
-    done: list[Tensor] = []
 
-    def projected() -> Tensor:
-        """The panorama re-read from each probe along the predicted depth, LNet's probe where unseen."""
-        if not method.projects:
-            raise PhyIRError(f"lighting method {method.name!r} reads the projected probes: register it "
-                             "with projects=True")
-        if done:
-            return done[0]
-        # (DepthSurface works in exposure-normalised units itself)
+    @functools.cache
+    def reread() -> Tensor:
+        """The panorama re-read from each probe along the predicted depth, LNet's probe where unseen
+        (DepthSurface works in exposure-normalised units itself)."""
+        from phyir.lighting.projection import project_probes, projected_probe_grid
+
         proj_scene = PanoScene(image=net.image.cpu(), depth=geo.get("depth", out.depth),
                                normal=geo.get("normal", out.normal))
         if pts is None:
-            from phyir.lighting.projection import projected_probe_grid
+            return projected_probe_grid(proj_scene, lnet_grid)
+        return project_probes(proj_scene, pts, tuple(lnet.shape[-2:]), lnet)[0]
 
-            done.append(projected_probe_grid(proj_scene, lnet_grid))
-        else:
-            from phyir.lighting.projection import project_probes
-
-            done.append(project_probes(proj_scene, pts, tuple(lnet.shape[-2:]), lnet)[0])
-        return done[0]
+    def projected() -> Tensor:
+        if not method.projects:
+            raise PhyIRError(f"lighting method {method.name!r} reads the projected probes: register it "
+                             "with projects=True")
+        return reread()
 
     probes = method.estimate(lnet, projected)
     return probes if pts is None else probes[:, None]
