@@ -1,5 +1,6 @@
 """``phyir export SCENE --gltf OUT.glb``: the room as a glTF mesh with materials, camera and lights,
-and the HDR panorama as ``OUT_env.exr`` beside it (docs/export.md)."""
+and the HDR panorama as ``OUT_env.exr`` beside it; ``--blend OUT.blend``: a ready Blender scene built
+from them by Blender (docs/export.md)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from phyir.commands import options
 POSITION = 1000.0
 PIXEL = 1e6  # --at: finite; the panorama's size is checked once it is loaded
 
-HELP = "export a scene as a glTF room (mesh, materials, camera, lights, objects) + its HDR panorama"
+HELP = ("export a scene as a glTF room (mesh, materials, camera, lights, objects) + its HDR panorama, "
+        "or as a ready Blender scene")
 
 
 class _Placement(argparse.Action):
@@ -29,8 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add = parser.add_argument
     add("scene", metavar="SCENE",
         help="scene file with depth (from phyir predict), or a panorama (the model predicts it first)")
-    add("--gltf", required=True, metavar="OUT.glb", help="binary glTF to write; OUT_env.exr goes beside it")
-    add("--exr", default=None, metavar="FILE.exr", help="the HDR panorama's file (default OUT_env.exr)")
+    add("--gltf", default=None, metavar="OUT.glb", help="binary glTF to write; OUT_env.exr goes beside it")
+    add("--exr", default=None, metavar="FILE.exr",
+        help="the HDR panorama's file of --gltf (default OUT_env.exr)")
+    add("--blend", default=None, metavar="OUT.blend",
+        help="a ready Blender scene to write (world, room as shadow catcher, camera, lights, objects, "
+             "compositing over the photograph), built by Blender from the glTF set")
+    add("--blender", default=None, metavar="PATH",
+        help="the Blender program for --blend (default: blender on PATH)")
     add("--grid", default=None, metavar="HxW",
         help="mesh resolution: cell rows x columns of the longitude/latitude grid (default 256x512, "
              "or the panorama's size if smaller)")
@@ -142,11 +150,24 @@ def run(args: argparse.Namespace) -> int:
     from phyir.export.room_mesh import DEFAULT_GRID
     from phyir.io import load_scene
 
-    exr = args.exr or environment_path(args.gltf)
-    check_output(args.gltf, "--gltf", ".glb")
-    check_output(exr, "--exr", ".exr")
-    if os.path.exists(args.scene) and os.path.exists(exr) and os.path.samefile(args.scene, exr):
-        raise InputError("--exr", f"{exr} is the input scene; choose another file name")
+    if args.gltf is None and args.blend is None:
+        raise InputError(None, "nothing to write: give --gltf OUT.glb, --blend OUT.blend or both")
+    if args.gltf is None and args.exr is not None:
+        raise InputError("--exr", "names the panorama of --gltf: give --gltf too")
+    if args.blend is None and args.blender is not None:
+        raise InputError("--blender", "runs Blender for --blend: give --blend too")
+    exr = None
+    if args.gltf is not None:
+        exr = args.exr or environment_path(args.gltf)
+        check_output(args.gltf, "--gltf", ".glb")
+        check_output(exr, "--exr", ".exr")
+        if os.path.exists(args.scene) and os.path.exists(exr) and os.path.samefile(args.scene, exr):
+            raise InputError("--exr", f"{exr} is the input scene; choose another file name")
+    if args.blend is not None:
+        from phyir.export.blend import find_blender
+
+        check_output(args.blend, "--blend", ".blend")
+        find_blender(args.blender)  # before the scene is read: a missing Blender is a quick error
     if not (0 <= args.lights <= 256):
         raise InputError("--lights", f"expected 0..256, got {args.lights}")
     if not (1.0 <= args.fov <= 170.0):
@@ -164,8 +185,21 @@ def run(args: argparse.Namespace) -> int:
     grid = (parse_grid(args.grid, scene.size) if args.grid is not None
             else tuple(min(g, n) for g, n in zip(DEFAULT_GRID, scene.size)))
     objects = make_objects(args, scene)
-    r = export_gltf(scene, args.gltf, exr_path=exr, grid=grid, objects=objects, max_lights=args.lights,
-                    fov_deg=args.fov)
+    if args.blend is not None:
+        from phyir.export.blend import write_blend
+
+        b = write_blend(scene, args.blend, blender=args.blender, gltf=args.gltf, exr=exr, grid=grid,
+                        objects=objects, max_lights=args.lights, fov_deg=args.fov)
+        lights = "on" if b.lights_render else "off in renders: the room's EXR emission carries their light"
+        print(f"wrote {b.blend} ({b.blend_bytes / 1e6:.1f} MB, Blender {b.blender}: room as shadow catcher, "
+              f"camera, {b.lights} lights ({lights}), {b.objects} object{'' if b.objects == 1 else 's'}, "
+              f"compositing over the photograph) in {b.seconds:.1f} s")
+        if args.gltf is None:
+            return 0
+        r = b.gltf
+    else:
+        r = export_gltf(scene, args.gltf, exr_path=exr, grid=grid, objects=objects, max_lights=args.lights,
+                        fov_deg=args.fov)
     print(f"wrote {r.glb} ({r.glb_bytes / 1e6:.1f} MB: {r.vertices} vertices, {r.faces} triangles, "
           f"{r.dropped} dropped at depth edges, {r.lights} lights, {r.objects} objects) and {r.exr} "
           f"({r.exr_bytes / 1e6:.1f} MB) in {r.seconds:.2f} s")

@@ -89,10 +89,12 @@ def export_gltf(scene: PanoScene, path: str, *, exr_path: str | None = None,
                 grid: tuple[int, int] = DEFAULT_GRID, objects: Sequence[SceneObject] = (),
                 max_lights: int = MAX_LIGHTS, min_grazing_deg: float = MIN_GRAZING_DEG,
                 fov_deg: float = 60.0, aspect: float = 1.5,
-                camera_rotation: np.ndarray | None = None) -> ExportReport:
+                camera_rotation: np.ndarray | None = None, environment: str | None = None) -> ExportReport:
     """Write ``path`` (.glb) and ``exr_path`` (default: :func:`environment_path`) for an unbatched scene
     with depth (see the module doc); the camera: ``fov_deg`` (vertical), ``aspect`` (width / height)
-    and ``camera_rotation`` (see :func:`phyir.export.gltf.write_glb`)."""
+    and ``camera_rotation`` (see :func:`phyir.export.gltf.write_glb`).  ``environment``: the EXR's
+    file name the glb records (default ``exr_path``'s; another when both are temporaries renamed
+    later)."""
     t0 = time.perf_counter()
     if scene.depth is None:
         raise InputError(path, "the scene has no depth layer to build the room from")
@@ -101,9 +103,9 @@ def export_gltf(scene: PanoScene, path: str, *, exr_path: str | None = None,
     lights, base = scene_lights(scene, max_lights)
     tex = room_textures(scene, base)
     H, W = scene.size
-    tex.extras = {"environment": os.path.basename(exr_path), "mapping": "equirect (docs/conventions.md)",
-                  "panorama_size": [H, W], "light_threshold_factor": BRIGHT_FACTOR,
-                  "lumens_per_watt": LUMENS_PER_WATT}
+    tex.extras = {"environment": environment or os.path.basename(exr_path),
+                  "mapping": "equirect (docs/conventions.md)", "panorama_size": [H, W],
+                  "light_threshold_factor": BRIGHT_FACTOR, "lumens_per_watt": LUMENS_PER_WATT}
     image = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0).numpy()
     write_together([path, exr_path], [
         lambda tmp: write_glb(tmp, room, tex, lights, list(objects), fov_deg, aspect, camera_rotation),
