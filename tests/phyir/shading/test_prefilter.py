@@ -276,6 +276,7 @@ def test_bfloat16_levels_match_float32(monkeypatch):
 def test_level_matmul_dtype_policy(monkeypatch):
     big = prefilter.BF16_MIN_MACS
     x = torch.zeros(1)
+    monkeypatch.setattr(prefilter, "LEVEL_PRECISION", "auto")  # whatever PHYIR_LEVEL_PRECISION the run has
     monkeypatch.setattr(prefilter, "cpu_has_native_bf16", lambda: True)
     assert prefilter.level_matmul_dtype(x, big) == torch.bfloat16
     assert prefilter.level_matmul_dtype(x, big - 1) == torch.float32  # small products stay exact
