@@ -55,6 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="HDR panoramas (files or folders): their auto-exposed 8-bit copies' light "
                              "recovered by each method (naive, gain, clipnet) against the HDR, at the camera "
                              "and per clipped region (phyir.evaluation.ldr_light)")
+    parser.add_argument("--clipnet", metavar="FILE",
+                        help="--ldr-light: ClipNet weights to measure (default: the shipped ones, if any)")
     parser.add_argument("--sheet", metavar="PNG", type=options.path,
                         help="--real, --scans: write a contact sheet of the rooms")
     parser.add_argument("--lighting", choices=predict_cmd.lighting_methods().names(),
@@ -135,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "ldr_light", None):
         from phyir.evaluation.ldr_light import evaluate_ldr_light, markdown_ldr_light
 
-        results = evaluate_ldr_light(args.ldr_light, log=lambda s: print(s, file=sys.stderr, flush=True))
+        results = evaluate_ldr_light(args.ldr_light, log=lambda s: print(s, file=sys.stderr, flush=True),
+                                     clipnet=args.clipnet)
         write_outputs(args, results, markdown_ldr_light(results))
         return 0
     if bool(args.data) == bool(args.predictions):

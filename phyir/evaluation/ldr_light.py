@@ -45,19 +45,19 @@ def _gain(ldr: Tensor) -> Tensor:
     return recover_clipped(ldr)[0]
 
 
-def _clipnet(ldr: Tensor) -> Tensor:
+def methods(clipnet: str | os.PathLike | None = None) -> dict[str, Callable[[Tensor], Tensor]]:
+    """The recoveries measured: naive, gain and, where its weights are present (``clipnet``, default
+    the shipped ones), clipnet."""
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
-    return recover(ldr, load_clipnet())[0]
-
-
-def methods() -> dict[str, Callable[[Tensor], Tensor]]:
-    """The recoveries measured: naive, gain and, where its weights are present, clipnet."""
-    from phyir.lighting.ldr_to_hdr import load_clipnet
-
     out = {"naive": _naive, "gain": _gain}
-    if load_clipnet() is not None:
-        out["clipnet"] = _clipnet
+    model = load_clipnet(clipnet)
+    if model is not None:
+        out["clipnet"] = lambda ldr: recover(ldr, model)[0]
+    elif clipnet is not None:
+        from phyir.errors import InputError
+
+        raise InputError(clipnet, "ClipNet weights not found")
     return out
 
 
@@ -86,15 +86,16 @@ def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, floa
     return out
 
 
-def evaluate_panorama(path: str | os.PathLike) -> dict[str, dict[str, float]]:
-    """``{method: metrics}`` of one HDR panorama (module doc)."""
+def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None = None
+                      ) -> dict[str, dict[str, float]]:
+    """``{method: metrics}`` of one HDR panorama (module doc); ``clipnet``: weights to measure."""
     from phyir.evaluation.real import ldr_copy
     from phyir.io import load_panorama
 
     hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
     ldr, scale = ldr_copy(hdr)
     truth = hdr * scale
-    envs = {name: fn(ldr) for name, fn in methods().items()}
+    envs = {name: fn(ldr) for name, fn in methods(clipnet).items()}
     stack = torch.stack([pano.resize_area(e.float(), *RL.INTEGRATION_SIZE) for e in (truth, *envs.values())])
     rows: dict[str, dict[str, float]] = {name: {} for name in envs}
     for mat in RL.MATERIALS:
@@ -109,7 +110,8 @@ def evaluate_panorama(path: str | os.PathLike) -> dict[str, dict[str, float]]:
     return rows
 
 
-def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None] | None = None) -> dict:
+def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None] | None = None,
+                       clipnet: str | os.PathLike | None = None) -> dict:
     """:func:`evaluate_panorama` on HDR panoramas (files, or folders of them); ``{"<name>/<method>":
     metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere."""
     from phyir.evaluation.real import panorama_files
@@ -118,7 +120,7 @@ def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None
     files = [f for f in files if f.suffix.lower() in (".hdr", ".exr")]
     out: dict[str, dict[str, float]] = {}
     for f in files:
-        for name, row in evaluate_panorama(f).items():
+        for name, row in evaluate_panorama(f, clipnet).items():
             out[f"{f.stem}/{name}"] = row
         if log is not None:
             d = {k.split("/")[1]: v["diffuse.rel_l1"] for k, v in out.items() if k.startswith(f"{f.stem}/")}
