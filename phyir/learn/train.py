@@ -165,6 +165,14 @@ def _restrict_training(model: PhyIRModel, prefixes: tuple[str, ...]) -> None:
     for n, p in model.named_parameters():
         if not any(under(n, q) for q in prefixes):
             p.requires_grad_(False)
+    for m in model.modules():  # a frozen batch norm keeps its (e.g. ImageNet) running statistics
+        if isinstance(m, (nn.BatchNorm1d, nn.BatchNorm2d, nn.BatchNorm3d)) and \
+                not any(p.requires_grad for p in m.parameters()):
+            m.register_forward_pre_hook(_keep_eval)
+
+
+def _keep_eval(module: nn.Module, args) -> None:
+    module.training = False
 
 
 def _lr_lambda(schedule: str, total_steps: int):

@@ -328,3 +328,20 @@ def test_train_only_and_reinit_fine_tune_one_head(tmp_path):
         train(_cfg(tmp_path / "d", "gm", reinit=("lnet.nope",)), datasets=_datasets())
     with pytest.raises(PhyIRError, match="metallic_loss must be"):
         train(_cfg(tmp_path / "e", "gm", loss={"metallic_loss": "l1"}), datasets=_datasets())
+
+
+def test_a_frozen_pretrained_encoder_keeps_its_weights_and_its_batch_statistics(tmp_path):
+    """A fresh ``effnet`` gm stage starts from the ImageNet encoder; with only the decoders trained the
+    encoder's weights and its batch norms' running statistics stay the pretrained ones (a frozen
+    norm layer in training mode would otherwise re-estimate them on the synthetic images)."""
+    from phyir.nets.efficientnet import pretrained_state_dict
+
+    cfg = _cfg(tmp_path, "gm", epochs=1, model="effnet", train_only=("gmnet.decoders",))
+    train(cfg, datasets=_datasets())
+    enc = {k.removeprefix("gmnet.encoder."): v
+           for k, v in load_model(tmp_path / "gm" / "model.safetensors").state_dict().items()
+           if k.startswith("gmnet.encoder.")}
+    ref = pretrained_state_dict()
+    assert set(enc) == set(ref)
+    for k, v in ref.items():  # (stored as float32 in the export)
+        torch.testing.assert_close(enc[k].to(v.dtype), v, rtol=0, atol=0, msg=k)
