@@ -86,6 +86,7 @@ def _args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--ckpt-every", type=int, default=200)
     ap.add_argument("--val-every", type=int, default=200)
     ap.add_argument("--ship", help="write the float16 weights here at the end")
+    ap.add_argument("--init", help="start from these weights (a --ship file) when OUT has no checkpoint")
     return ap.parse_args(argv)
 
 
@@ -108,6 +109,14 @@ def main(argv: list[str] | None = None) -> int:
         opt.load_state_dict(st["opt"])
         step, cpu = st["step"], st["cpu_seconds"]
         gen.set_state(st["gen"])
+    elif a.init:
+        from phyir.errors import InputError
+        from phyir.lighting.ldr_to_hdr import load_clipnet
+
+        start = load_clipnet(a.init)
+        if start is None:
+            raise InputError(a.init, "no such ClipNet weights file (--init)")
+        model.load_state_dict(start.state_dict())
     print(f"clipnet: {len(real)} real + {len(synth)} synthetic panoramas, {len(val)} held out; step {step}",
           flush=True)
 
