@@ -4,8 +4,8 @@ For each scene file of DATA[START:STOP], GMNet's raw depth and normals (phyir.pr
 refinement switched off) are compared with the ground truth, then the refined depth for a grid of
 (anchor, tau), and the normals of each depth. Prints one line per setting.
 
-    python benchmarks/depth_normal_refine.py /work/data/h128 0:10     # the rooms the constants were chosen on
-    python benchmarks/depth_normal_refine.py /work/data/h128 10:30    # the check
+    python -m benchmarks.depth_normal_refine /work/data/h128 0:10     # the rooms the constants were chosen on
+    python -m benchmarks.depth_normal_refine /work/data/h128 10:30    # the check
 (data: phyir synth --out /work/data/h128 --count 30 --seed 7000 --size 128x256 --probe-grid 16x32 --spp 8)
 """
 

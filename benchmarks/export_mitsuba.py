@@ -1,7 +1,7 @@
 """docs/img/export_mitsuba.png: the demo scene exported with ``phyir export`` (two spheres inserted)
 and rendered by Mitsuba 3 from the exported file (room emission from the EXR, no lights).
 
-    python benchmarks/export_mitsuba.py [--out docs/img/export_mitsuba.png] [--spp 64]
+    python -m benchmarks.export_mitsuba [--out docs/img/export_mitsuba.png] [--spp 64]
 """
 
 from __future__ import annotations

@@ -20,8 +20,8 @@ step (:func:`phyir.plausible_geometry.consistent_depth`):
   e.g. from the image's vanishing points);
 * ``height_prior`` — depth scaled so the camera stands 1.5 m above the floor (the generator's mean).
 
-    python benchmarks/geometry_priors.py data/h128 0:30      # the held-out rooms
-    python benchmarks/geometry_priors.py data/n128 0:60      # the wider generator (halls, studios)
+    python -m benchmarks.geometry_priors data/h128 0:30      # the held-out rooms
+    python -m benchmarks.geometry_priors data/n128 0:60      # the wider generator (halls, studios)
 
 (data: ``phyir synth --out data/h128 --count 30 --seed 7000 --size 128x256 --probe-grid 16x32 --spp 8``;
 ``phyir synth --out data/n128 --count 160 --seed 20000 --size 128x256 --probe-grid 16x32 --spp 8``.)

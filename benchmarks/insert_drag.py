@@ -1,7 +1,7 @@
 """Live-dragging frame time of an inserted 20k-triangle mesh in a 1024x512 equirect view, against
 the bare panorama frame measured in the same run (software GL on this machine: Mesa llvmpipe).
 
-    .venv/bin/python benchmarks/insert_drag.py [--scene FILE] [--frames 20] [--out benchmarks/results]
+    .venv/bin/python -m benchmarks.insert_drag [--scene FILE] [--frames 20] [--out benchmarks/results]
 
 Each dragging frame moves the object along the floor (phyir.insert.placement.Drag, as a mouse drag does),
 recomputes its lighting (probe interpolation, lights, irradiance) and redraws impostor, shadow maps
@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 
 
 SIZE = (1024, 512)  # the equirect view (width, height)
@@ -55,7 +54,7 @@ def _scene(args: argparse.Namespace):
     if args.scene:
         scene = load_scene(args.scene)
     else:
-        from support.scenes import box_room
+        from tests.support.scenes import box_room
 
         scene = box_room(512, 1024, grid=(32, 64), probe_size=(16, 32))
     if args.relight_tolerance is not None:

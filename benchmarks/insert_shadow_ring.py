@@ -7,7 +7,7 @@ radius of its edge):
 * ``darkening`` = 1 - (ring luminance after) / (before): the issue's bar is >= 0.15;
 * ``ring_min`` = the 2nd percentile of the per-pixel ratio after / before (a black halo is < 0.25).
 
-    .venv/bin/python benchmarks/insert_shadow_ring.py ../shared/panos/*.hdr [--json out.json]
+    .venv/bin/python -m benchmarks.insert_shadow_ring ../shared/panos/*.hdr [--json out.json]
 
 Panoramas go through ``phyir.predict`` (the shipped weights); scene files are used as they are.
 """

@@ -1,6 +1,6 @@
 """The GLSL object shading of the supplement's Table 2 spheres against the converged renderer.
 
-    .venv/bin/python benchmarks/insert_spheres.py [--size 24] [--spp 4096] [--samples 128]
+    .venv/bin/python -m benchmarks.insert_spheres [--size 24] [--spp 4096] [--samples 128]
 
 For each real panorama in ../shared/panos (downsampled to a 16 x 32 probe) and the tests' procedural
 lamp probe, a sphere of each material is shaded by shaders/ibl.glsl (viewer.insertion
@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 
 
 def main() -> int:
@@ -40,7 +39,7 @@ def main() -> int:
 
     probes = {}
     try:
-        from support.scenes import lamp_probe
+        from tests.support.scenes import lamp_probe
 
         probes["lamps (tests)"] = lamp_probe()
     except ImportError:

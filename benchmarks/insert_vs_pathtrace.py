@@ -1,6 +1,6 @@
 """GPU insertion against the path tracer: a sphere added to a synthetic room (phyir.insert.reference).
 
-    .venv/bin/python benchmarks/insert_vs_pathtrace.py [--seed 2022 --index 0] [--size 128x256]
+    .venv/bin/python -m benchmarks.insert_vs_pathtrace [--seed 2022 --index 0] [--size 128x256]
         [--spp 64 --ref-spp 256] [--out benchmarks/results] [--image docs/img/insert_vs_pathtrace.png]
 
 The insertion gets the room's ground-truth layers and probes (traced without the sphere) and renders

@@ -8,7 +8,7 @@ few very bright lamps that dominate the mean), and the log-linear fit against th
 (``AREA_EXPONENT``; its residual says how little the area tells).
 
     phyir synth --out data/h128 --count 40 --seed 7000 --size 128x256 --probe-grid 16x32 --spp 8
-    python benchmarks/ldr_clip_calibration.py data/h128
+    python -m benchmarks.ldr_clip_calibration data/h128
 """
 
 from __future__ import annotations

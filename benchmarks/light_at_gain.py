@@ -2,9 +2,9 @@
 share of the diffuse protocol sphere's brightness (``phyir eval --real``'s sphere, seen from the camera)
 that the light at the camera and the light at the point (``phyir.lighting.at_point.LightAtPoint``)
 give it, both relative to the camera's total: a region whose share grows is where the parallax
-through the predicted depth brings light nearer.
+through the predicted depth brings light nearer (``phyir.evaluation.light_gain``).
 
-    .venv/bin/python benchmarks/light_at_gain.py pred/artist_workshop_1k.exr [--point 0,-0.2,-0.8]
+    .venv/bin/python -m benchmarks.light_at_gain pred/artist_workshop_1k.exr [--point 0,-0.2,-0.8]
 
 Input: a scene file of ``phyir predict`` (depth, normals and probes).
 """
@@ -12,51 +12,11 @@ Input: a scene file of ``phyir predict`` (depth, normals and probes).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
-import torch
-
-from phyir import pano
-from phyir.color import luminance
 from phyir.evaluation import real_lighting as RL
-from phyir.evaluation.real import ZENITH_LAT, plausibility
+from phyir.evaluation.light_gain import check_point, report
 from phyir.io import load_scene
-from phyir.lighting.at_point import LightAtPoint
-
-SIZE = (32, 64)
-BANDS = (("up", 30, 90), ("horizon", -30, 30), ("down", -90, -30))  # latitude, degrees
-QUARTERS = (("front (-z)", 0), ("right (+x)", 90), ("back (+z)", 180), ("left (-x)", 270))  # azimuth centre
-
-
-def sphere_kernel(point: tuple[float, float, float], size: tuple[int, int] = SIZE) -> torch.Tensor:
-    """``[h*w]``: how much each texel's radiance adds to the mean of the diffuse sphere at ``point`` as
-    the camera sees it (the cosine of each visible sphere normal, averaged, times the solid angle)."""
-    n, _, _ = RL.sphere_pixels(point)
-    d = pano.directions(*size, dtype=torch.float64).reshape(3, -1)
-    return (n @ d).clamp_min(0).mean(0) * pano.solid_angles(*size, dtype=torch.float64).reshape(-1)
-
-
-def region_masks(size: tuple[int, int] = SIZE) -> dict[str, torch.Tensor]:
-    """``{"<band> <quarter>": [h*w] bool}`` of the texel directions."""
-    d = pano.directions(*size, dtype=torch.float64).reshape(3, -1)
-    lat = torch.rad2deg(torch.asin(d[1].clamp(-1, 1)))
-    az = torch.rad2deg(torch.atan2(d[0], -d[2])) % 360  # 0 = -z (forward), 90 = +x
-    out = {}
-    for band, lo, hi in BANDS:
-        for quarter, centre in QUARTERS:
-            off = (az - centre + 180) % 360 - 180
-            out[f"{band} {quarter}"] = (lat >= lo) & (lat < hi) & (off.abs() < 45)
-    return out
-
-
-def ceiling_height(scene) -> float:
-    """Median height above the camera (m) of the predicted points above ``ZENITH_LAT`` (where
-    ``phyir eval --real`` expects the ceiling)."""
-    H, W = scene.size
-    y = pano.depth_to_points(scene.depth.double())[1]
-    lat = 90 - (torch.arange(H, dtype=torch.float64) + 0.5) * 180 / H
-    return float(y[lat > ZENITH_LAT].median())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,24 +26,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="x,y,z in metres, camera frame (default: the real protocol's sphere centre)")
     a = ap.parse_args(argv)
     point = tuple(float(c) for c in a.point.split(","))
-    if len(point) != 3 or not all(math.isfinite(c) for c in point):
-        ap.error(f"--point {a.point!r}: expected three numbers x,y,z")
-    if math.hypot(*point) < 0.05:
-        ap.error(f"--point {a.point!r}: the camera would be inside the sphere; give a point >= 5 cm away")
-    scene = load_scene(a.scene)
-    probes = LightAtPoint(scene, SIZE).probes_at(torch.tensor([point, (0.0, 0.0, 0.0)]))
-    k = sphere_kernel(point)
-    at_point, at_camera = (luminance(p.double()).reshape(-1) * k for p in probes)
-    total = float(at_camera.sum())
-    print(f"{a.scene}: the diffuse sphere at {point} is {float(at_point.sum()) / total:.2f}x as bright "
-          "as under the light at the camera")
-    print(f"the predicted room: floor {plausibility(scene)['camera_height']:.2f} m below the camera, ceiling "
-          f"{ceiling_height(scene):.2f} m above (medians below and above the camera)")
-    print("| directions | share at the camera | share at the point |")
-    print("| --- | ---: | ---: |")
-    for name, m in region_masks().items():
-        cam, pt = (float(x[m].sum()) / total for x in (at_camera, at_point))
-        print(f"| {name} | {cam:.3f} | {pt:.3f} |")
+    try:
+        check_point(point)
+    except ValueError as e:
+        ap.error(f"--point {a.point!r}: {e}")
+    print("\n".join(report(load_scene(a.scene), point, a.scene)))
     return 0
 
 

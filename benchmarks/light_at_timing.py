@@ -5,7 +5,7 @@ with. While an object is dragged the viewer asks for it at draft quality (one ra
 :data:`phyir.lighting.at_point.DRAFT_STEP` grid) on a worker thread; a still frame asks at full
 quality. Every point here is new (a cache miss): the time is what one move costs, not the cache.
 
-    python benchmarks/light_at_timing.py phyir/assets/demo.exr --points 24
+    python -m benchmarks.light_at_timing phyir/assets/demo.exr --points 24
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ Monte Carlo, as the bench).  None of them was kept (docs/rendering.md, Findings)
   (``oracle``, the bound for any detector).  Times: median CPU ms of 5 calls, one thread, the
   prefiltered render (prefiltering included) and the quadrature on the hybrid's pixels.
 
-    .venv/bin/python benchmarks/lobe_quadrature.py [--kinds metal glossy] [--seeds 1 3 0]
+    .venv/bin/python -m benchmarks.lobe_quadrature [--kinds metal glossy] [--seeds 1 3 0]
         [--quad 4x4 4x8 8x8] [--fis 8 16 32] [--hybrid 4x8 8x8] [--fractions 0.05 0.1]
         [--bench benchmarks/results/render.json]
 """

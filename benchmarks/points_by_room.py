@@ -8,8 +8,8 @@ ratio of the predicted depth to the true depth, then the diffuse sphere's rel L1
 ``light_at_gt_geometry`` (the same through the true depth) and the camera's panorama (the real
 protocol's truth: no parallax at all).
 
-    .venv/bin/python benchmarks/points_by_room.py data/n128 0:160 --kind halls
-    .venv/bin/python benchmarks/points_by_room.py data/n128 0:40 --kind rooms
+    .venv/bin/python -m benchmarks.points_by_room data/n128 0:160 --kind halls
+    .venv/bin/python -m benchmarks.points_by_room data/n128 0:40 --kind rooms
 """
 
 from __future__ import annotations

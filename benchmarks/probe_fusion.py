@@ -7,8 +7,8 @@ the probes are LNet's grid at the cell's predicted position, the projection from
 (LNet where unseen), their plain geometric mean and ``fuse_probes`` (geometric-mean shape, mean
 energy) at each weight. Prints the mean of each metric per variant.
 
-    python benchmarks/probe_fusion.py data/n128 train 40      # where FUSE_WEIGHT was chosen
-    python benchmarks/probe_fusion.py data/h128 train 30      # held out (24 rooms in its train split)
+    python -m benchmarks.probe_fusion data/n128 train 40      # where FUSE_WEIGHT was chosen
+    python -m benchmarks.probe_fusion data/h128 train 30      # held out (24 rooms in its train split)
 
 (data/n128: ``phyir synth --out data/n128 --count 160 --seed 20000 --size 128x256 --probe-grid 16x32
 --spp 8``; data/h128: the same with ``--count 30 --seed 7000``.)

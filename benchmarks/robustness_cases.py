@@ -7,8 +7,8 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-import robustness_inputs as mk
-from robustness_checks import (
+from benchmarks import robustness_inputs as mk
+from benchmarks.robustness_checks import (
     Case,
     both,
     chain,

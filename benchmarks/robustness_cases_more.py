@@ -8,9 +8,20 @@ import json
 import re
 from pathlib import Path
 
-import robustness_inputs as mk
-from robustness_cases import EXPORT, INSERT, PRED, SYNTH, TRAIN, class1, class2, class3, class4, class5
-from robustness_checks import (
+from benchmarks import robustness_inputs as mk
+from benchmarks.robustness_cases import (
+    EXPORT,
+    INSERT,
+    PRED,
+    SYNTH,
+    TRAIN,
+    class1,
+    class2,
+    class3,
+    class4,
+    class5,
+)
+from benchmarks.robustness_checks import (
     SIZES,
     VALUES,
     WEIGHTS,

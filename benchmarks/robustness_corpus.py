@@ -11,7 +11,7 @@ figure is the command's own).  Outcomes:
   outputs), MEMORY (> 1.5 GB), BAD-MESSAGE (several lines, nothing named, raw control characters),
   SILENT-NONSENSE (exit 0, meaningless output and no warning).
 
-    python benchmarks/robustness_corpus.py [--json OUT] [--only SUBSTRING] [--keep DIR] [--list]
+    python -m benchmarks.robustness_corpus [--json OUT] [--only SUBSTRING] [--keep DIR] [--list]
 
 Prints a table case -> outcome and the counts per class; exits 1 if any case is not OK.
 """
@@ -33,9 +33,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import robustness_cases_more  # noqa: E402  (the cases; beside this file)
-import robustness_checks  # noqa: E402
+from benchmarks import robustness_cases_more, robustness_checks
 
 BIN = Path(sys.executable).parent
 MEMORY_MB = 1536
@@ -202,8 +200,7 @@ def main(argv: list[str] | None = None) -> int:
             print(c.key)
         return 0
     t_all = time.monotonic()
-    subprocess.run([sys.executable, str(Path(__file__).with_name("robustness_inputs.py")), str(base)],
-                   check=True, timeout=600)
+    subprocess.run([sys.executable, "-m", "benchmarks.robustness_inputs", str(base)], check=True, timeout=600)
     logs = root / "logs"
     logs.mkdir()
     egl = robustness_checks.have_egl()

@@ -1,12 +1,13 @@
 """How dark *should* the floor ring around an inserted sphere be?  An independent reference for
-``insert_shadow_ring.py``: per ring pixel, the floor point's irradiance with and without the sphere,
-integrated by brute force over the light arriving at that point (``phyir.lighting.light_at``: the
-panorama projected from the point through its depth, lamps where they are), the sphere's texels
+``benchmarks.insert_shadow_ring``: per ring pixel, the floor point's irradiance with and without the
+sphere, integrated by brute force over the light arriving at that point (``phyir.lighting.light_at``:
+the panorama projected from the point through its depth, lamps where they are), the sphere's texels
 replaced by what a diffuse sphere sends back there (its albedo / pi x the irradiance of the light at
-its centre around the hit point's normal).  The same light the renderer is given, so the comparison
-tests the shadow and occlusion model (``composite.frag``), not the lighting.
+its centre around the hit point's normal; ``phyir.insert.reference``).  The same light the renderer
+is given, so the comparison tests the shadow and occlusion model (``composite.frag``), not the
+lighting.
 
-    .venv/bin/python benchmarks/shadow_ring_reference.py ../shared/panos/*.hdr [--json out.json]
+    .venv/bin/python -m benchmarks.shadow_ring_reference ../shared/panos/*.hdr [--json out.json]
 
 Per spot: the renderer's darkening (as ``insert_shadow_ring``) and the reference's over the same
 pixels, and their ratio.
@@ -22,54 +23,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from insert_shadow_ring import ring_band, spot_renders  # noqa: E402
-
-from phyir import pano  # noqa: E402
+from benchmarks.insert_shadow_ring import ring_band, spot_renders
+from phyir import pano
+from phyir.insert.reference import irradiance_towards, sphere_occlusion
 
 LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
-
-
-def sphere_occlusion(x: torch.Tensor, dirs: torch.Tensor, centre: torch.Tensor, r: float,
-                     sub: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per point ``x [N,3]`` and texel direction ``dirs [3,h,w]``: the share of the texel the sphere
-    covers (``sub`` x ``sub`` jittered directions) and the mean unit normal where they hit it."""
-    h, w = dirs.shape[-2:]
-    rows, cols = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
-                                indexing="ij")
-    cover = torch.zeros(x.shape[0], h, w, dtype=torch.float64)
-    normal = torch.zeros(x.shape[0], 3, h, w, dtype=torch.float64)
-    oc = centre[None, :, None, None] - x[:, :, None, None]  # [N,3,1,1]
-    for a in range(sub):
-        for b in range(sub):
-            d = pano.uv_to_dir(cols + (b + 0.5) / sub, rows + (a + 0.5) / sub, h, w)[None]  # [1,3,h,w]
-            t = (oc * d).sum(1)
-            miss2 = (oc * oc).sum(1) - t * t
-            hit = (t > 0) & (miss2 < r * r)
-            th = t - torch.sqrt((r * r - miss2).clamp_min(0))
-            p = x[:, :, None, None] + th[:, None] * d
-            m = (p - centre[None, :, None, None]) / r
-            cover += hit.double()
-            normal += m * hit[:, None].double()
-    cover /= sub * sub
-    normal = torch.nn.functional.normalize(normal, dim=1)
-    return cover, normal
-
-
-def irradiance_towards(probe: torch.Tensor, normals: torch.Tensor, map_size: tuple[int, int] = (32, 64)
-                       ) -> torch.Tensor:
-    """Irradiance ``[N,3,h,w]`` of ``probe [3,ph,pw]`` around unit normals ``normals [N,3,h,w]``: its
-    irradiance map (brute force over the probe's texels, smooth), looked up bilinearly."""
-    ph, pw = probe.shape[-2:]
-    d = pano.directions(ph, pw, dtype=torch.float64).reshape(3, -1)
-    om = pano.solid_angles(ph, pw, dtype=torch.float64).reshape(-1)
-    L = probe.double().reshape(3, -1) * om  # [3,T]
-    mh, mw = map_size
-    n = pano.directions(mh, mw, dtype=torch.float64).reshape(3, -1)
-    emap = (L @ (n.T @ d).clamp_min(0).T).reshape(3, mh, mw)
-    N, _, h, w = normals.shape
-    flat = normals.permute(1, 0, 2, 3).reshape(3, -1)
-    return pano.sample_dir(emap, flat).reshape(3, N, h, w).permute(1, 0, 2, 3)
 
 
 def ring_reference(scene, obj, ring_px: torch.Tensor, size: tuple[int, int], max_points: int,

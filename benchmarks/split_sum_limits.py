@@ -20,7 +20,7 @@ and the renderer's value.  A pixel where the ideal split sum is close to the tru
 is not errs in the levels (their alpha spacing and resolution); one where the ideal split sum is far
 off errs in the split-sum approximation itself (kernels standing in for the lobe).
 
-    .venv/bin/python benchmarks/split_sum_limits.py [--kind metal] [--seeds 0 1] [--worst 4]
+    .venv/bin/python -m benchmarks.split_sum_limits [--kind metal] [--seeds 0 1] [--worst 4]
 """
 
 from __future__ import annotations

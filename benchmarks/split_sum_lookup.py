@@ -6,7 +6,7 @@ of ``phyir bench render``'s glossy and metal scenes (128x256, a probe per 2x2 pi
 * ``lobe-shaped``: the renderer's two look-ups around the lobe's mean direction, with the alpha of
   the lobe's width across the plane of n and v (:func:`phyir.shading.prefilter.lobe_shape_table`).
 
-    .venv/bin/python benchmarks/split_sum_lookup.py [--seeds 0 1 2 3 4 5] [--ref-spp 1024]
+    .venv/bin/python -m benchmarks.split_sum_lookup [--seeds 0 1 2 3 4 5] [--ref-spp 1024]
 
 Prints a Markdown table: specular error (image error in brackets) per scene.
 """

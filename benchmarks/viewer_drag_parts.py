@@ -5,9 +5,9 @@ are drawn in one piece here (``InsertionPass.progressive = False``): the frame a
 the full-quality work the viewer otherwise spreads over frames (``viewer.refinement``), and so is every
 frame of the camera turning and the exposure dragged after it (``viewer.app.cli.bench_moves``).
 
-    .venv/bin/python benchmarks/viewer_drag_parts.py [SCENE] [--mesh vase.glb] [--frames 30]
+    .venv/bin/python -m benchmarks.viewer_drag_parts [SCENE] [--mesh vase.glb] [--frames 30]
 
-Default: the demo scene with two spheres and a 20k-triangle vase (benchmarks/insert_gallery.vase).
+Default: the demo scene with two spheres and a 20k-triangle vase (``benchmarks.insert_gallery.vase``).
 """
 
 from __future__ import annotations
@@ -37,8 +37,7 @@ def main(argv: list[str] | None = None) -> int:
 
     mesh = args.mesh
     if mesh is None:
-        sys.path.insert(0, str(REPO / "benchmarks"))
-        from insert_gallery import vase
+        from benchmarks.insert_gallery import vase
 
         mesh = str(Path(tempfile.mkdtemp()) / "vase.glb")
         vase(mesh)

@@ -9,27 +9,7 @@ from __future__ import annotations
 import json
 import sys
 
-METHODS = (("light_at", "`light_at` (ours)"), ("fused", "the fused probe grid (`phyir predict`)"),
-           ("lnet", "LNet alone (probe grid)"),
-           ("panorama", "the camera's panorama (the real protocol's truth)"),
-           ("light_at_gt_geometry", "`light_at` through the true depth"))
-WHERE = (("protocol_median", "protocol point"), ("points", "free points"))
-
-
-def points_table(results: dict) -> list[str]:
-    out = ["| light at the point | where | diffuse rel L1 | diffuse ratio | diffuse colour "
-           "| matte silver rel L1 | probe log-MSE | relight diffuse / matte / mirror |",
-           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for prefix, where in WHERE:
-        for method, label in METHODS:
-            r = results.get(f"{prefix}/{method}")
-            if r is None:
-                continue
-            out.append(f"| {label} | {where} | {r['diffuse.rel_l1']:.3f} | {r['diffuse.ratio']:.2f} "
-                       f"| {r['diffuse.colour_deg']:.1f}° | {r['matte_silver.rel_l1']:.3f} "
-                       f"| {r['probe_log_mse']:.3f} | {r['relight_diffuse']:.4f} "
-                       f"/ {r['relight_matte_silver']:.3f} / {r['relight_mirror_silver']:.3f} |")
-    return out
+from phyir.evaluation.points import points_table  # the table's rows and labels
 
 
 def main(argv: list[str]) -> int:

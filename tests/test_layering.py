@@ -4,12 +4,15 @@
 * each package imports only packages of its own layer or below;
 * no module uses another module's private names;
 * no file over 600 lines, class over 350, function over 100 (outside tests);
-* no test module imports another; the GL packages are an extra, not a base dependency.
+* no test module imports another, nor a benchmark or script (by import or by path);
+* nothing edits ``sys.path`` (packages import as packages: ``python -m benchmarks.NAME``);
+* the GL packages are an extra, not a base dependency.
 """
 
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -191,6 +194,131 @@ def test_the_test_import_rule_flags_test_modules_and_allows_support():
         assert imports_of_test_modules(ast.parse(src), forbidden), src
     for src in allowed:
         assert not imports_of_test_modules(ast.parse(src), forbidden), src
+
+
+# The one file that may edit sys.path: it runs inside Blender's own Python (``phyir export --blend``,
+# or Blender's Text editor), where phyir's environment is not installed, and lends that Python the
+# numpy of the environment that launched it (ensure_numpy) for Blender's glTF importer.
+SYS_PATH_EXEMPT = {"phyir/export/blender_scene.py"}
+# folders that hold no source of the repository (environments, caches, runs and data sets)
+NOT_SOURCE = {"runs", "data", "out", "build", "node_modules", "__pycache__"}
+SYS_PATH_METHODS = {"insert", "append", "extend", "remove", "pop", "clear", "reverse", "sort", "__setitem__",
+                    "__delitem__", "__iadd__"}
+
+
+def repository_python_files() -> list[Path]:
+    """Every ``.py`` file of the repository: all folders but hidden ones (.venv, .git, caches) and
+    :data:`NOT_SOURCE`."""
+    out = []
+    for root, dirs, files in os.walk(REPO):
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and d not in NOT_SOURCE
+                         and not d.endswith(".egg-info"))
+        out += [Path(root) / f for f in sorted(files) if f.endswith(".py")]
+    return out
+
+
+def sys_path_edits(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, code) of every change to ``sys.path``: one of its mutating methods called, the name or an
+    item or slice of it assigned (``=``, ``+=``) or deleted, ``site.addsitedir``; ``sys``, ``path``
+    and ``addsitedir`` under any name they are imported as."""
+    sys_names, path_names, addsitedir = set(), set(), set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name == "sys":
+                    sys_names.add(a.asname or "sys")
+                elif a.name == "site":
+                    addsitedir.add(f"{a.asname or 'site'}.addsitedir")
+        elif isinstance(node, ast.ImportFrom) and node.module in ("sys", "site") and node.level == 0:
+            for a in node.names:
+                if node.module == "sys" and a.name == "path":
+                    path_names.add(a.asname or "path")
+                elif node.module == "site" and a.name == "addsitedir":
+                    addsitedir.add(a.asname or "addsitedir")
+
+    def is_path(e: ast.AST) -> bool:
+        if isinstance(e, ast.Subscript):
+            return is_path(e.value)
+        if isinstance(e, ast.Attribute):
+            return e.attr == "path" and isinstance(e.value, ast.Name) and e.value.id in sys_names
+        return isinstance(e, ast.Name) and e.id in path_names
+
+    out = []
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Call):
+            f = node.func
+            if isinstance(f, ast.Attribute) and f.attr in SYS_PATH_METHODS and is_path(f.value):
+                out.append((node.lineno, ast.unparse(node)))
+            elif ast.unparse(f) in addsitedir:
+                out.append((node.lineno, ast.unparse(node)))
+        elif isinstance(node, (ast.Assign, ast.Delete)):
+            targets = node.targets
+        elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+            targets = [node.target]
+        for t in targets:
+            for e in (t.elts if isinstance(t, (ast.Tuple, ast.List)) else [t]):
+                if is_path(e):
+                    out.append((node.lineno, ast.unparse(node)))
+    return out
+
+
+def test_nothing_edits_sys_path():
+    """Packages import as packages (``python -m benchmarks.NAME`` from the repository root, the tests
+    through pyproject's ``pythonpath``), never by adding folders to ``sys.path`` at run time."""
+    files = repository_python_files()
+    assert {"phyir/cli.py", "benchmarks/__init__.py", "tests/test_layering.py"} <= {
+        p.relative_to(REPO).as_posix() for p in files}
+    bad, exempt = [], []
+    for p in files:
+        rel = p.relative_to(REPO).as_posix()
+        for line, code in sys_path_edits(ast.parse(p.read_text(encoding="utf-8"))):
+            (exempt if rel in SYS_PATH_EXEMPT else bad).append(f"{rel}:{line}: {code}")
+    assert not bad, "edits sys.path:\n" + "\n".join(bad)
+    assert exempt, f"{sorted(SYS_PATH_EXEMPT)} no longer edits sys.path: drop the exemption"
+
+
+def test_the_sys_path_rule_flags_every_kind_of_edit():
+    flagged = ["import sys\nsys.path.insert(0, 'x')", "import sys\nsys.path.append('x')",
+               "import sys as s\ns.path.extend(['x'])", "import sys\nsys.path = ['x']",
+               "import sys\nsys.path[:0] = ['x']", "import sys\nsys.path += ['x']",
+               "import sys\ndel sys.path[0]", "from sys import path\npath.insert(0, 'x')",
+               "from sys import path as p\np.remove('x')", "import site\nsite.addsitedir('x')",
+               "from site import addsitedir\naddsitedir('x')",
+               "import sys\ndef f():\n    sys.path.insert(0, 'x')"]
+    allowed = ["import sys\nprint(sys.path)", "import sys\nx = list(sys.path)",
+               "import os\nos.path.join('a')", "from pathlib import Path\nPath('x')",
+               "import sys\nif 'x' in sys.path: pass",
+               "path = []\npath.append(1)", "import sys\nsys.argv.insert(0, 'x')"]
+    for src in flagged:
+        assert sys_path_edits(ast.parse(src)), src
+    for src in allowed:
+        assert not sys_path_edits(ast.parse(src)), src
+
+
+def loads_by_path_or_imports_tools(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, what) of a test's imports of ``benchmarks`` or ``scripts`` and of its module loads by
+    file path (``spec_from_file_location``, ``SourceFileLoader``, ``runpy``)."""
+    out = [(line, m) for line, m in imported_modules(tree)
+           if m.split(".")[0] in ("benchmarks", "scripts", "runpy")]
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Attribute, ast.Name)):
+            name = node.attr if isinstance(node, ast.Attribute) else node.id
+            if name in ("spec_from_file_location", "SourceFileLoader", "run_path"):
+                out.append((node.lineno, name))
+    return out
+
+
+def test_tests_use_the_library_not_benchmarks_or_scripts():
+    """What a test checks lives in the library or in tests/support/, not in a benchmark or a script
+    (which the tests would have to load by path)."""
+    bad = [f"{p.relative_to(REPO)}:{line}: {what}" for p in sorted((REPO / "tests").rglob("*.py"))
+           for line, what in loads_by_path_or_imports_tools(ast.parse(p.read_text(encoding="utf-8")))]
+    assert not bad, "\n".join(bad)
+    for src in ("from benchmarks.insert_gallery import vase", "import scripts.points_table",
+                "import importlib.util\nimportlib.util.spec_from_file_location('m', 'x.py')",
+                "import runpy\nrunpy.run_path('x.py')"):
+        assert loads_by_path_or_imports_tools(ast.parse(src)), src
 
 
 def test_every_package_ships():

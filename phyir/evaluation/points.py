@@ -208,3 +208,30 @@ def evaluate_model_points(root: str | os.PathLike, split: str = "test", *, count
 def _medians(meter: M.MetricMeter) -> dict[str, float]:
     keys = {k for row in meter.scenes for k in row}
     return {k: statistics.median(r[k] for r in meter.scenes if k in r) for k in keys}
+
+
+# the README's table of the light at points (``python scripts/points_table.py points.json``): its rows
+# in order, (method, label) and (result prefix, where)
+TABLE_METHODS = (("light_at", "`light_at` (ours)"), ("fused", "the fused probe grid (`phyir predict`)"),
+                 ("lnet", "LNet alone (probe grid)"),
+                 ("panorama", "the camera's panorama (the real protocol's truth)"),
+                 ("light_at_gt_geometry", "`light_at` through the true depth"))
+TABLE_PLACES = (("protocol_median", "protocol point"), ("points", "free points"))
+
+
+def points_table(results: dict) -> list[str]:
+    """The Markdown table (lines) of ``phyir eval --data --points --json``'s ``results``: a row per
+    method and place found there, in the order of :data:`TABLE_PLACES` and :data:`TABLE_METHODS`."""
+    out = ["| light at the point | where | diffuse rel L1 | diffuse ratio | diffuse colour "
+           "| matte silver rel L1 | probe log-MSE | relight diffuse / matte / mirror |",
+           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for prefix, where in TABLE_PLACES:
+        for method, label in TABLE_METHODS:
+            r = results.get(f"{prefix}/{method}")
+            if r is None:
+                continue
+            out.append(f"| {label} | {where} | {r['diffuse.rel_l1']:.3f} | {r['diffuse.ratio']:.2f} "
+                       f"| {r['diffuse.colour_deg']:.1f}° | {r['matte_silver.rel_l1']:.3f} "
+                       f"| {r['probe_log_mse']:.3f} | {r['relight_diffuse']:.4f} "
+                       f"/ {r['relight_matte_silver']:.3f} / {r['relight_mirror_silver']:.3f} |")
+    return out

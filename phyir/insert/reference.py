@@ -1,10 +1,15 @@
-"""Path-traced references for object insertion: a synthetic room rendered with and without an added
-sphere by the data generator's tracer (:mod:`phyir.synth`), used by
-``benchmarks/insert_vs_pathtrace.py`` to measure the GPU insertion against ground truth.
+"""References for object insertion.
 
-The room is the one :func:`phyir.synth.dataset.generate_scene` draws for ``(seed, index)``; the
-sphere is one more primitive of the room (its own material and culling group), so the tracer
-simulates everything the insertion approximates: shadows, occlusion near contact, interreflection.
+Path-traced: a synthetic room rendered with and without an added sphere by the data generator's tracer
+(:mod:`phyir.synth`), used by ``benchmarks.insert_vs_pathtrace`` to measure the GPU insertion against
+ground truth.  The room is the one :func:`phyir.synth.dataset.generate_scene` draws for
+``(seed, index)``; the sphere is one more primitive of the room (its own material and culling group),
+so the tracer simulates everything the insertion approximates: shadows, occlusion near contact,
+interreflection.
+
+Brute force: what a sphere hides of the light arriving at floor points (:func:`sphere_occlusion`) and
+the irradiance of a probe around given normals (:func:`irradiance_towards`), the pieces of
+``benchmarks.shadow_ring_reference``'s floor-ring darkening.
 """
 
 from __future__ import annotations
@@ -118,3 +123,45 @@ def sphere_mask(centre: np.ndarray, radius: float, depth: torch.Tensor) -> torch
     disc = b * b - float((c * c).sum()) + radius * radius
     t = b - torch.sqrt(disc.clamp(min=0))
     return (disc > 0) & (t > 0) & (t < depth[0].double())
+
+
+def sphere_occlusion(x: torch.Tensor, dirs: torch.Tensor, centre: torch.Tensor, r: float,
+                     sub: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per point ``x [N,3]`` and texel direction ``dirs [3,h,w]``: the share of the texel the sphere
+    covers (``sub`` x ``sub`` jittered directions) and the mean unit normal where they hit it."""
+    h, w = dirs.shape[-2:]
+    rows, cols = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
+                                indexing="ij")
+    cover = torch.zeros(x.shape[0], h, w, dtype=torch.float64)
+    normal = torch.zeros(x.shape[0], 3, h, w, dtype=torch.float64)
+    oc = centre[None, :, None, None] - x[:, :, None, None]  # [N,3,1,1]
+    for a in range(sub):
+        for b in range(sub):
+            d = pano.uv_to_dir(cols + (b + 0.5) / sub, rows + (a + 0.5) / sub, h, w)[None]  # [1,3,h,w]
+            t = (oc * d).sum(1)
+            miss2 = (oc * oc).sum(1) - t * t
+            hit = (t > 0) & (miss2 < r * r)
+            th = t - torch.sqrt((r * r - miss2).clamp_min(0))
+            p = x[:, :, None, None] + th[:, None] * d
+            m = (p - centre[None, :, None, None]) / r
+            cover += hit.double()
+            normal += m * hit[:, None].double()
+    cover /= sub * sub
+    normal = torch.nn.functional.normalize(normal, dim=1)
+    return cover, normal
+
+
+def irradiance_towards(probe: torch.Tensor, normals: torch.Tensor, map_size: tuple[int, int] = (32, 64)
+                       ) -> torch.Tensor:
+    """Irradiance ``[N,3,h,w]`` of ``probe [3,ph,pw]`` around unit normals ``normals [N,3,h,w]``: its
+    irradiance map (brute force over the probe's texels, smooth), looked up bilinearly."""
+    ph, pw = probe.shape[-2:]
+    d = pano.directions(ph, pw, dtype=torch.float64).reshape(3, -1)
+    om = pano.solid_angles(ph, pw, dtype=torch.float64).reshape(-1)
+    L = probe.double().reshape(3, -1) * om  # [3,T]
+    mh, mw = map_size
+    n = pano.directions(mh, mw, dtype=torch.float64).reshape(3, -1)
+    emap = (L @ (n.T @ d).clamp_min(0).T).reshape(3, mh, mw)
+    N, _, h, w = normals.shape
+    flat = normals.permute(1, 0, 2, 3).reshape(3, -1)
+    return pano.sample_dir(emap, flat).reshape(3, N, h, w).permute(1, 0, 2, 3)

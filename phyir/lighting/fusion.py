@@ -23,7 +23,7 @@ from phyir import pano
 from phyir.color import luminance
 
 # LNet's share, chosen on 40 training rooms of the wider generator (`phyir synth --seed 20000`), not the
-# held-out ones (`python benchmarks/probe_fusion.py data/n128 train 40`): probe log-MSE 0.0581 / 0.0579 /
+# held-out ones (`python -m benchmarks.probe_fusion data/n128 train 40`): probe log-MSE 0.0581 / 0.0579 /
 # 0.0590 at 0.4 / 0.5 / 0.6, mirror-sphere relighting 0.0537 / 0.0535 / 0.0545, the other two spheres
 # within 6 % of each other (LNet alone: log-MSE 0.0751, the projection alone 0.0716)
 FUSE_WEIGHT = 0.5

@@ -5,7 +5,7 @@ holds a fraction of their energy (the real panoramas of ``phyir eval --real``: a
 the LDR copy is 0.4-0.9x as bright as under the HDR). Each connected clipped region (8-connected,
 wrapping in longitude, found at :data:`LABEL_ROWS` rows) gets the mean luminance a clipped steradian
 has in the synthetic rooms, relative to the panorama's median luminance: ``L / median = GAIN *
-A**AREA_EXPONENT`` (``python benchmarks/ldr_clip_calibration.py DATA``: auto-exposed 8-bit copies of
+A**AREA_EXPONENT`` (``python -m benchmarks.ldr_clip_calibration DATA``: auto-exposed 8-bit copies of
 path-traced HDR rooms; GAIN is the median over clipped solid angle; the region's area tells almost
 nothing — a log-linear fit leaves a factor ~4 of spread — so AREA_EXPONENT is 0). The region keeps
 its colour and its shape; a region already brighter than that is left alone. One number for every

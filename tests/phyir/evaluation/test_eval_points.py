@@ -110,23 +110,14 @@ def test_the_fused_and_lnet_rows_read_their_own_grids(room):
                               P.POINT_METHODS["lnet"](preds, room, pts, (8, 16)))
 
 
-def test_the_readme_table_script(tmp_path, capsys):
-    """scripts/points_table.py: a row per method and place found in the JSON, in the README's order."""
-    import importlib.util
-
-    from support.paths import REPO
-
-    spec = importlib.util.spec_from_file_location("points_table", REPO / "scripts" / "points_table.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_the_readme_table():
+    """points_table (scripts/points_table.py prints it): a row per method and place found in the JSON,
+    in the README's order."""
     keys = ("diffuse.rel_l1", "diffuse.ratio", "diffuse.colour_deg", "matte_silver.rel_l1", "probe_log_mse",
             "relight_diffuse", "relight_matte_silver", "relight_mirror_silver")
     res = {f"{w}/{m}": {k: 0.1 * (i + 1) for k in keys} for i, m in enumerate(("lnet", "light_at"))
            for w in ("points", "protocol_median")}
-    js = tmp_path / "p.json"
-    js.write_text(json.dumps(res))
-    assert mod.main([str(js)]) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
+    lines = P.points_table(res)
     assert len(lines) == 2 + 4
     assert lines[2].startswith("| `light_at` (ours) | protocol point | 0.200 | 0.20 | 0.2° |")
     assert lines[3].startswith("| LNet alone (probe grid) | protocol point | 0.100 |")

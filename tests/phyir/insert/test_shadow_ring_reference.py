@@ -1,20 +1,15 @@
-"""The floor-ring shadow reference (benchmarks/shadow_ring_reference.py) against closed forms: a
-sphere's form factor seen from a floor point, and the irradiance of uniform light."""
+"""The pieces of the floor-ring shadow reference (phyir.insert.reference, used by
+benchmarks.shadow_ring_reference) against closed forms: a sphere's form factor seen from a floor point,
+and the irradiance of uniform light."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import torch
-from support.paths import REPO
 
 from phyir import pano
-
-_spec = importlib.util.spec_from_file_location(
-    "shadow_ring_reference", REPO / "benchmarks" / "shadow_ring_reference.py")
-ref = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ref)
+from phyir.insert import reference as ref
 
 
 def test_sphere_occlusion_gives_the_form_factor_of_a_sphere_above_a_floor_point():

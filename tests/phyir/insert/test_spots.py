@@ -1,26 +1,21 @@
-"""The insertion gallery's floor-spot finder (benchmarks/insert_gallery.py) on an exact box room and
-on the same room as a model predicts it: a floor that curves up towards the walls and a normal layer
+"""The floor-spot finder (phyir.insert.spots, used by benchmarks.insert_gallery) on an exact box room
+and on the same room as a model predicts it: a floor that curves up towards the walls and a normal layer
 that says "up" everywhere (as the shipped model does on ../shared/panos/fireplace_1k.hdr)."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import time
 
 import numpy as np
 import torch
-from support.paths import REPO
 from support.scenes import FLOOR_Y, TABLE_HI, TABLE_LO, room_with_table
 
 from phyir import pano
+from phyir.insert.spots import GROUP_SPREAD, floor_spots
 from phyir.scene import PanoScene
 
 H, W = 256, 512
-_spec = importlib.util.spec_from_file_location(
-    "insert_gallery", REPO / "benchmarks" / "insert_gallery.py")
-gallery = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(gallery)
 
 
 def room_depth_normal() -> tuple[torch.Tensor, torch.Tensor]:
@@ -47,7 +42,7 @@ def true_points(depth: torch.Tensor, spots) -> np.ndarray:
 
 def test_spots_stand_on_the_open_floor_of_an_exact_room():
     depth, normal = room_depth_normal()
-    spots = gallery.floor_spots(scene_of(depth, normal), 4)
+    spots = floor_spots(scene_of(depth, normal), 4)
     assert len(spots) == 4
     pts = true_points(depth, spots)
     assert np.allclose(pts[:, 1], FLOOR_Y, atol=0.01)
@@ -73,7 +68,7 @@ def test_spots_on_predicted_like_geometry_are_found_fast_and_on_the_real_floor()
     up = torch.zeros(3, H, W)
     up[1] = 1
     t = time.process_time()
-    spots = gallery.floor_spots(scene_of(predicted, up), 4)
+    spots = floor_spots(scene_of(predicted, up), 4)
     assert time.process_time() - t < 10  # the per-pixel search took minutes on 512 x 1024
     assert len(spots) == 4
     pts = true_points(depth, spots)
@@ -81,5 +76,5 @@ def test_spots_on_predicted_like_geometry_are_found_fast_and_on_the_real_floor()
     assert all(footprint_gap(x, z) > 0.1 for x, _, z in pts)
     lon = np.arctan2(pts[:, 0], -pts[:, 2])
     spread = np.abs((lon[:, None] - lon[None] + np.pi) % (2 * np.pi) - np.pi).max()
-    assert spread <= 2 * gallery.GROUP_SPREAD + 1e-6  # one group, in one view
+    assert spread <= 2 * GROUP_SPREAD + 1e-6  # one group, in one view
 

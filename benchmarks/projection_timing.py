@@ -3,7 +3,7 @@
 The radiance is a real HDR panorama (../shared/panos, or --pano); the depth is that of a box room
 around the camera (the timing depends on the number of rays and marching steps, not on the content).
 
-    .venv/bin/python scripts/bench_projection.py --grid 64x128 --probe 16x32 --threads 2
+    .venv/bin/python -m benchmarks.projection_timing --grid 64x128 --probe 16x32 --threads 2
 """
 
 from __future__ import annotations
