@@ -246,6 +246,9 @@ def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = No
         model = model_from_checkpoint(src, ck)
         info = {"from_checkpoint": {k: ck.get(k) for k in ("epoch", "batch", "step", "seconds")},
                 "config": ck.get("config")}
+        size = (ck.get("config") or {}).get("size")
+        if size:  # predict runs the networks at the resolution they were trained at
+            info["data"] = {"resolution": f"{size[0]}x{size[1]}"}
     else:
         model = load_model(src)
         if sidecar_path(src).is_file():

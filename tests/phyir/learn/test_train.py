@@ -345,3 +345,21 @@ def test_a_frozen_pretrained_encoder_keeps_its_weights_and_its_batch_statistics(
     assert set(enc) == set(ref)
     for k, v in ref.items():  # (stored as float32 in the export)
         torch.testing.assert_close(enc[k].to(v.dtype), v, rtol=0, atol=0, msg=k)
+
+
+def test_ship_a_checkpoint_records_its_resolution_and_takes_lnet_gsnet_from_another_file(tmp_path):
+    import json
+
+    from phyir.learn.weights import ship, with_networks_of
+
+    train(_cfg(tmp_path / "run", "gm", epochs=1, size=(H, W)), datasets=_datasets())
+    dst = ship(tmp_path / "run" / "gm" / "checkpoint.pt", tmp_path / "geo.safetensors")
+    assert json.loads(dst.with_suffix(".json").read_text())["data"]["resolution"] == f"{H}x{W}"
+    torch.manual_seed(5)
+    other = save_weights(_model(), tmp_path / "other.safetensors")
+    geo = load_model(dst)
+    mixed = with_networks_of(load_model(dst), other)
+    ref = load_model(other).state_dict()
+    for k, v in mixed.state_dict().items():
+        want = ref[k] if k.split(".")[0] in ("lnet", "gsnet") else geo.state_dict()[k]
+        assert torch.equal(v, want), k
