@@ -1,4 +1,4 @@
-"""Depth-normal refinement (phyir.depth_normal.refine_depth) against ground truth on synthetic rooms.
+"""Depth-normal refinement (phyir.geometry.depth_normal.refine_depth) against ground truth on synthetic rooms.
 
 For each scene file of DATA[START:STOP], GMNet's raw depth and normals (phyir.predict with the
 refinement switched off) are compared with the ground truth, then the refined depth for a grid of
@@ -17,9 +17,10 @@ from pathlib import Path
 
 import phyir.inference as inference
 from phyir import metrics as M
-from phyir import pano, plausible_geometry
-from phyir.depth_normal import refine_depth
+from phyir import pano
 from phyir.evaluation.synthetic import model_input, surface_mask
+from phyir.geometry import plausible
+from phyir.geometry.depth_normal import refine_depth
 from phyir.io import load_scene
 
 KEYS = ("depth.abs_rel", "depth.rmse", "depth.delta1", "normal.mean")
@@ -54,7 +55,7 @@ def main() -> None:
     files = sorted(Path(a.data).glob("scene_*.exr"))[start:stop]
     preds = raw_predictions(files)
     print(f"{len(preds)} scenes of {a.data} [{a.range}]; predict's setting: anchor "
-          f"{plausible_geometry.REFINE_ANCHOR}, tau {plausible_geometry.REFINE_TAU}")
+          f"{plausible.REFINE_ANCHOR}, tau {plausible.REFINE_TAU}")
     print("network depth, network normals:", score(preds, lambda d, n: (d, n)))
     print("network depth, its normals:    ", score(preds, lambda d, n: (d, pano.normals_from_depth(d))))
     for anchor, tau in itertools.product((1e-2, 3e-3, 1e-3), (0.01, 0.02, 0.05)):

@@ -4,7 +4,7 @@ GMNet's geometry on synthetic rooms is smooth where the rooms are boxes: its wal
 with longitude like a cylinder's, its depth has no corners (issue 19: AbsRel 0.267, normals 17°
 against targets of 0.15 / 12°). Each variant below is a prior a layout method would add at
 inference, applied to the network's outputs at 128x256 and followed by predict's own consistency
-step (:func:`phyir.plausible_geometry.consistent_depth`):
+step (:func:`phyir.geometry.plausible.consistent_depth`):
 
 * ``base``        — predict's geometry (GMNet, gravity snap, depth refinement, floor under camera);
 * ``tta_mirror``  — GMNet on the input and its left-right mirror, averaged (log depth, normals);
@@ -44,9 +44,9 @@ from phyir import pano
 from phyir.color import exposure_scale, luminance
 from phyir.evaluation.real import plausibility
 from phyir.evaluation.synthetic import surface_mask
+from phyir.geometry.plausible import consistent_depth, plausible_gmnet, unflip
 from phyir.inference import load_cached_model
 from phyir.io import load_scene
-from phyir.plausible_geometry import consistent_depth, plausible_gmnet, unflip
 from phyir.scene import PanoScene
 from phyir.transforms import mirror_lr, rotate_yaw
 

@@ -47,7 +47,7 @@ from phyir.estimators import (  # DEFAULT_LIGHTING and DEFAULT_GEOMETRY are re-e
     lighting_methods,
 )
 from phyir.filters import guided_upsample
-from phyir.plausible_geometry import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
+from phyir.geometry.plausible import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
 from phyir.scene import PanoScene
 
 OUTPUTS = ("depth", "normal", "albedo", "roughness", "metallic", "probes")
@@ -376,7 +376,7 @@ def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOpti
 
 
 def _consistent_depth(gm: dict[str, Tensor], plan: _Plan, report: PredictReport) -> None:
-    """:func:`phyir.plausible_geometry.consistent_depth` on GMNet's layers, only where the depth is
+    """:func:`phyir.geometry.plausible.consistent_depth` on GMNet's layers, only where the depth is
     predicted, not the input's."""
     if "depth" not in gm or "normal" not in gm or plan.have & {"depth", "normal"}:
         return
@@ -412,7 +412,7 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
 
 def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
                        report: PredictReport) -> Tensor:
-    """The network's normals, or, where they have collapsed (:func:`phyir.plausible_geometry.collapsed`),
+    """The network's normals, or, where they have collapsed (:func:`phyir.geometry.plausible.collapsed`),
     the normals of the predicted depth (at the network's resolution, guided-upsampled)."""
     report.normals_away = away_share(normal)
     if not collapsed(report.normals_away):

@@ -25,7 +25,7 @@ GL_MODULES = ("viewer", "moderngl", "glfw", "imgui_bundle", "OpenGL")
 # layer of each unit (a top-level module or subpackage of phyir, or the app); imports go down or sideways
 LAYERS = {
     "phyir.errors": 0, "phyir.scene": 0, "phyir.pano": 0, "phyir.color": 0, "phyir.filters": 0,
-    "phyir.transforms": 0, "phyir.depth_normal": 0, "phyir.gravity": 0, "phyir.plausible_geometry": 0,
+    "phyir.transforms": 0, "phyir.geometry": 0,
     "phyir.estimators": 0,
     "phyir.io": 1, "phyir.shading": 1,
     "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,

@@ -142,7 +142,8 @@ def _read_mesh(path: str) -> None:
     assert len(m.faces) and m.faces.max() < len(m.vertices)
 
 
-_IMAGE_MODULES = ("phyir.io.exr", "phyir.io.rgbe", "phyir.io.ldr", "phyir.io", "phyir.scene")
+_IMAGE_MODULES = ("phyir.io.exr", "phyir.io.rgbe", "phyir.io.ldr", "phyir.io", "phyir.io.layout",
+                  "phyir.io.raw", "phyir.io.repairs", "phyir.io.loaders", "phyir.io.writers", "phyir.scene")
 
 
 _EXR_TOKENS = (b"channels\x00chlist\x00", b"compression\x00compression\x00", b"dataWindow\x00box2i\x00",

@@ -12,7 +12,7 @@ Formulas (see docs/training.md):
 - N: mean angle (radians) between predicted and true normals.
 - depth gradient: L1 between the horizontal (wrapping) and vertical finite differences of log depth.
 - depth–normal: L1 between the predicted log depth's steps and the steps the predicted normals
-  imply (:func:`phyir.depth_normal.log_depth_steps`), where the ground truth has one surface (not
+  imply (:func:`phyir.geometry.depth_normal.log_depth_steps`), where the ground truth has one surface (not
   in the paper: it ties the two heads together, so their layers agree on rooms unlike the training set).
 - L (probes): L2 of log(1 + x) between predicted and true probes.
 - SC: neighbouring probes pulled together, weighted by exp(-|Δ log depth| / σ_sc) between their
@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from phyir.depth_normal import agreement, forward_differences, log_depth_steps
+from phyir.geometry.depth_normal import agreement, forward_differences, log_depth_steps
 from phyir.pano import resize_area
 from phyir.scene import PanoScene
 

@@ -12,10 +12,10 @@ from support.tiny_scenes import tiny_scene, write_dataset
 
 import phyir
 from phyir import inference as I
-from phyir import plausible_geometry
 from phyir.cli import main as cli
 from phyir.estimators import lighting_methods
 from phyir.filters import guided_upsample
+from phyir.geometry import plausible
 from phyir.io import load_scene, save_panorama, save_scene
 from phyir.learn.weights import save_weights
 from phyir.nets import ModelConfig, PhyIRModel
@@ -102,8 +102,8 @@ def test_the_default_grid_fuses_lnet_and_projection(model, image):
 
 def test_supplied_layers_are_not_recomputed(model, image, monkeypatch):
     # one GMNet pass per prediction: the random model's normals would trigger the mirrored pass
-    # (tests/phyir/test_plausible_geometry.py), which is not what this test counts
-    monkeypatch.setattr(plausible_geometry, "MAX_AWAY_SHARE", 1.0)
+    # (tests/phyir/geometry/test_plausible.py), which is not what this test counts
+    monkeypatch.setattr(plausible, "MAX_AWAY_SHARE", 1.0)
     gm, gs, ln = (Counter(monkeypatch, m) for m in (model.gmnet, model.gsnet, model.lnet))
     full = phyir.predict(image, model=model, net_size=(64, 128), lighting="lnet")
     assert (gm.n, gs.n, ln.n) == (1, 1, 1)

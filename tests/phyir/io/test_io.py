@@ -374,7 +374,7 @@ def test_save_panorama_is_atomic_for_every_format(tmp_path, monkeypatch):
         seen.append(os.fspath(path))
         return real(path)
 
-    monkeypatch.setattr(io, "atomic_write", spy)
+    monkeypatch.setattr(io.writers, "atomic_write", spy)  # where the writers look it up
     t = make_scene(15).image.clamp(max=1)
     for name in ("a.exr", "a.hdr", "a.png", "a.jpg"):
         io.save_panorama(t, tmp_path / name)

@@ -1,4 +1,4 @@
-"""phyir.depth_normal: the normals' log-depth steps are exact on planes, and refinement flattens a
+"""phyir.geometry.depth_normal: the normals' log-depth steps are exact on planes, and refinement flattens a
 bent room back onto its planes (analytic box rooms)."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from phyir import pano
-from phyir.depth_normal import log_depth_steps, refine_depth
+from phyir.geometry.depth_normal import log_depth_steps, refine_depth
+from phyir.geometry.plausible import REFINE_ANCHOR, REFINE_TAU
 from phyir.learn.losses import depth_normal_loss
-from phyir.plausible_geometry import REFINE_ANCHOR, REFINE_TAU
 
 
 def box_room(H: int, W: int, lo=(-2.5, -1.5, -5.0), hi=(3.5, 1.2, 3.0)) -> tuple[torch.Tensor, torch.Tensor]:

@@ -4,8 +4,9 @@ Real rooms unlike the training data can collapse the normal head (the whole pano
 network's depth comes out bowl-shaped or bumpy where its normals would say flat. What holds in any
 panorama from an upright camera corrects both: a surface the camera sees faces the camera
 (:func:`away_share`, :func:`plausible_gmnet`), floors are level and walls plumb
-(:func:`phyir.gravity.snap_normals`), depth and normals agree (:func:`phyir.depth_normal.refine_depth`)
-and straight below the camera is the floor it stands on (:func:`phyir.gravity.floor_under_camera`).
+(:func:`phyir.geometry.gravity.snap_normals`), depth and normals agree
+(:func:`phyir.geometry.depth_normal.refine_depth`) and straight below the camera is the floor it
+stands on (:func:`phyir.geometry.gravity.floor_under_camera`).
 """
 
 from __future__ import annotations
@@ -16,15 +17,15 @@ import torch
 from torch import Tensor
 
 from phyir import pano
-from phyir.depth_normal import refine_depth
-from phyir.gravity import LEVEL_DEG_FROM_DEPTH, floor_under_camera, snap_normals
+from phyir.geometry.depth_normal import refine_depth
+from phyir.geometry.gravity import LEVEL_DEG_FROM_DEPTH, floor_under_camera, snap_normals
 
 # A surface the camera sees faces the camera.  A normal layer with more than this share of its pixels
 # (solid-angle weighted) facing away has collapsed (the whole panorama "up": real rooms unlike the
 # training data) and is replaced by the normals of the predicted depth.
 MAX_AWAY_SHARE = 0.05
-# depth-normal refinement (phyir.depth_normal.refine_depth), chosen on 10 synthetic rooms of seed 7000
-# (benchmarks/depth_normal_refine.py; checked on 20 others): reach ~ 1/sqrt(anchor) = 18 px, steps
+# depth-normal refinement (phyir.geometry.depth_normal.refine_depth), chosen on 10 synthetic rooms of
+# seed 7000 (benchmarks/depth_normal_refine.py; checked on 20 others): reach ~ 1/sqrt(anchor) = 18 px, steps
 # further than ~0.02 in log depth from the normals' are occlusions
 REFINE_ANCHOR = 3e-3
 REFINE_TAU = 0.02
@@ -86,7 +87,7 @@ def consistent_depth(depth: Tensor, normal: Tensor) -> tuple[Tensor, Tensor | No
     around it. Returns the depth, the snapped ``normal [1,3,H,W]`` (None where the normal head had
     collapsed: then the depth follows its own normals, re-derived :data:`FALLBACK_PASSES` times,
     each pass levelling the floor a little more, and the normal layer is to come from it) and the
-    camera height :func:`phyir.gravity.floor_under_camera` used (None: not applied)."""
+    camera height :func:`phyir.geometry.gravity.floor_under_camera` used (None: not applied)."""
     depth = depth.float()  # float32 is enough (1.8e-6 from float64 on a real room) at half the time
     if not collapsed(away_share(normal[0])):
         snapped = snap_normals(normal.float())

@@ -1,4 +1,4 @@
-"""phyir.gravity: normals near level or plumb are pulled onto gravity's directions exactly, smoothly,
+"""phyir.geometry.gravity: normals near level or plumb are pulled onto gravity's directions exactly, smoothly,
 only toward a side the camera can see, and slanted surfaces past the tolerances keep theirs."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from phyir import pano
-from phyir.gravity import (
+from phyir.geometry.gravity import (
     FLOOR_RING_DEG,
     LEVEL_DEG,
     NADIR_BLEND_DEG,

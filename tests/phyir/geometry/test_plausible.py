@@ -11,8 +11,9 @@ import math
 import torch
 from torch import nn
 
-from phyir import inference, pano, plausible_geometry
-from phyir.gravity import LEVEL_DEG_FROM_DEPTH, snap_normals
+from phyir import inference, pano
+from phyir.geometry import plausible
+from phyir.geometry.gravity import LEVEL_DEG_FROM_DEPTH, snap_normals
 from phyir.scene import PanoScene
 from phyir.synth.analytic import box_room
 
@@ -66,9 +67,9 @@ def lamp_panorama() -> torch.Tensor:
 
 def test_away_share_of_exact_normals_is_zero_and_of_collapsed_ones_half():
     _, normal = box_room(H, W, LO, HI)
-    assert plausible_geometry.away_share(normal.float()) == 0.0
+    assert plausible.away_share(normal.float()) == 0.0
     up = torch.tensor([0.0, 1.0, 0.0])[:, None, None].expand(3, H, W)
-    assert abs(plausible_geometry.away_share(up) - 0.5) < 0.02
+    assert abs(plausible.away_share(up) - 0.5) < 0.02
 
 
 def test_collapsed_pass_is_replaced_by_the_mirrored_pass():
@@ -89,7 +90,7 @@ def test_normals_fall_back_to_the_depth_when_no_pass_is_plausible():
     depth, truth = box_room(H, W, LO, HI)
     from_depth = snap_normals(pano.normals_from_depth(out.depth), level_deg=LEVEL_DEG_FROM_DEPTH)
     assert torch.allclose(out.normal, from_depth, atol=1e-6)
-    assert plausible_geometry.away_share(out.normal) == 0.0
+    assert plausible.away_share(out.normal) == 0.0
     # the box's faces are planar: their depth normals are exact away from the edges
     assert float(angle_deg(out.normal, truth.float()).median()) < 1.0
 
