@@ -24,8 +24,10 @@ from phyir import pano
 from phyir.scene import PanoScene
 from phyir.synth import geometry as G
 from phyir.synth.materials import PLAIN, Material
-from phyir.synth.rooms import PrimSpec, Room, generate_room
-from phyir.synth.tracer import TraceSettings, trace
+from phyir.synth.room import PrimSpec, Room
+from phyir.synth.rooms import generate_room
+from phyir.synth.trace_settings import TraceSettings
+from phyir.synth.tracer import trace
 
 
 @dataclass

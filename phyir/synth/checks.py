@@ -23,7 +23,7 @@ from torch import Tensor
 
 from phyir.scene import PanoScene
 from phyir.synth.dataset import generate_scene
-from phyir.synth.tracer import TraceSettings
+from phyir.synth.trace_settings import TraceSettings
 
 PROBE_PIXELS = 4  # one probe per 4x4 pixels, as in the default 256x512 / 64x128
 

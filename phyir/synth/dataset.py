@@ -23,7 +23,8 @@ from phyir.errors import PhyIRError
 from phyir.scene import PROBE_OFFSET, PanoScene
 from phyir.synth.lights import AREA, PORTAL, SUN
 from phyir.synth.rooms import generate_room
-from phyir.synth.tracer import TraceSettings, trace
+from phyir.synth.trace_settings import TraceSettings
+from phyir.synth.tracer import trace
 
 SPLITS = (("train", 0.8), ("val", 0.1), ("test", 0.1))
 EXPOSURE_MEDIAN = 0.18  # median luminance of non-emissive pixels after normalisation (x 2^+-1)

@@ -16,8 +16,8 @@ from phyir.synth import geometry as G
 from phyir.synth.lights import PORTAL
 from phyir.synth.materials import evaluate
 
-if TYPE_CHECKING:  # the settings live with the tracer that owns them
-    from phyir.synth.tracer import TraceSettings
+if TYPE_CHECKING:
+    from phyir.synth.trace_settings import TraceSettings
 
 SPAWN = 5e-4  # ray origin offset from surfaces
 

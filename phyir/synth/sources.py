@@ -11,8 +11,8 @@ import numpy as np
 from phyir.synth import geometry as G
 from phyir.synth.lights import SUN_RADIUS
 
-if TYPE_CHECKING:  # the room types live with the room generator, which imports this module
-    from phyir.synth.rooms import PrimSpec, Room
+if TYPE_CHECKING:
+    from phyir.synth.room import PrimSpec, Room
 
 # Dynamic range: the brightest panel/lamp is drawn SOURCE_RATIO (log-uniform, decades) times the
 # radiance of the walls it and the other sources light, estimated in closed form (wall_radiance)

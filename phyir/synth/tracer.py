@@ -1,6 +1,6 @@
 """Path tracer for the synthetic rooms (torch, vectorised over rays, CPU or CUDA).
 
-Outputs, for a :class:`~phyir.synth.rooms.TraceScene` seen from the origin (camera frame):
+Outputs, for a :class:`~phyir.synth.room.TraceScene` seen from the origin (camera frame):
 
 * exact G-buffers of the pixel-centre rays: radial depth, normal (facing the camera), base colour,
   roughness, metalness, emission mask;
@@ -61,28 +61,7 @@ from phyir.synth.paths import (
     trace_paths,
     visible,
 )
-
-
-@dataclass
-class TraceSettings:
-    size: tuple[int, int] = (256, 512)
-    probe_grid: tuple[int, int] | None = (64, 128)
-    probe_size: tuple[int, int] = (16, 32)
-    spp: int = 16  # camera samples per pixel
-    nee_samples: int = 4  # light samples per camera sample (first vertex only)
-    texel: float = 0.1  # light-map texel size (metres), enlarged to stay under lm_max_texels
-    lm_max_texels: int = 12000
-    lm_light_samples: int = 32
-    lm_gather: int = 128  # a power of two: a complete Sobol net per texel
-    lm_iters: int = 8
-    max_depth: int = 6
-    rr_depth: int = 3
-    cov_budget: int = 1024  # sub-rays per probe and source for emitter coverage
-    cov_max_sub: int = 12  # at most cov_max_sub^2 sub-rays per texel
-    vis_rays: int = 4
-    sun_rays: int = 8
-    probe_batch: int = 512
-    pixel_batch: int = 16384
+from phyir.synth.trace_settings import TraceSettings
 
 
 @dataclass
