@@ -120,6 +120,77 @@ def test_no_module_uses_another_modules_private_names():
     assert not bad, "\n".join(bad)
 
 
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def private_attributes(tree: ast.AST) -> tuple[set[str], list[tuple[int, str]]]:
+    """(the private attributes a file sets, (line, name) of each private attribute it reads).
+    Setting is an assignment or ``del`` of ``anything._x`` (``self._x: T`` with no value declares,
+    sets nothing), ``setattr(o, "_x", v)``, or a method or value ``_x`` in a class body; reading is
+    any other ``anything._x`` and ``getattr``/``hasattr(o, "_x")``."""
+    declared = {id(n.target) for n in ast.walk(tree) if isinstance(n, ast.AnnAssign) and n.value is None}
+    sets: set[str] = set()
+    uses: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            for b in node.body:
+                if isinstance(b, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    sets.add(b.name)
+                targets = b.targets if isinstance(b, ast.Assign) else (
+                    [b.target] if isinstance(b, ast.AnnAssign) and b.value is not None else [])
+                sets.update(t.id for t in targets if isinstance(t, ast.Name))
+        elif isinstance(node, ast.Attribute) and _private(node.attr) and id(node) not in declared:
+            if isinstance(node.ctx, (ast.Store, ast.Del)):
+                sets.add(node.attr)
+            else:
+                uses.append((node.lineno, node.attr))
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+              and node.func.id in ("setattr", "getattr", "hasattr") and len(node.args) >= 2
+              and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str)
+              and _private(node.args[1].value)):
+            if node.func.id == "setattr":
+                sets.add(node.args[1].value)
+            else:
+                uses.append((node.lineno, node.args[1].value))
+    return {s for s in sets if _private(s)}, uses
+
+
+def cross_file_privates(trees: dict[str, ast.AST]) -> list[str]:
+    """``file:line: _x (set in ...)`` for each private attribute read in a file that doesn't set it
+    but another of ``trees`` does (names set nowhere among them, a library's, are not counted)."""
+    found = {name: private_attributes(tree) for name, tree in trees.items()}
+    owners: dict[str, set[str]] = {}
+    for name, (sets, _) in found.items():
+        for attr in sets:
+            owners.setdefault(attr, set()).add(name)
+    return [f"{name}:{line}: {attr} (set in {', '.join(sorted(owners[attr]))})"
+            for name, (sets, uses) in found.items() for line, attr in uses
+            if attr not in sets and attr in owners]
+
+
+def test_no_private_attribute_is_used_outside_the_file_that_sets_it():
+    """In the viewer, a part reads another's state through a public name (a property, a method):
+    the part that sets ``_x`` is the only one that reads it."""
+    trees = {p.relative_to(REPO).as_posix(): ast.parse(p.read_text()) for p in sources("viewer")}
+    bad = cross_file_privates(trees)
+    assert not bad, "\n".join(bad)
+
+
+def test_the_private_attribute_rule_flags_reads_from_another_file():
+    flagged = {"a.py": "class A:\n    def __init__(self):\n        self._x = 1\n    def _f(self): pass",
+               "b.py": "class B:\n    _x: int\n    def g(self):\n        return self._x + self._f()\n"
+                       "    def h(self, o):\n        return getattr(o, '_x')"}
+    assert sorted(b.split(": ", 1)[1] for b in cross_file_privates(
+        {n: ast.parse(s) for n, s in flagged.items()})) == ["_f (set in a.py)", "_x (set in a.py)",
+                                                             "_x (set in a.py)"]
+    allowed = {"a.py": "class A:\n    def __init__(self):\n        self._x = 1\n    def f(self):\n"
+                       "        return self._x + self._g()\n    def _g(self): pass",
+               "b.py": "import enum\nclass B:\n    def __init__(self):\n        self._x = 2\n"
+                       "    def f(self, o):\n        return self._x + o.__class__ + enum.Key._1"}
+    assert not cross_file_privates({n: ast.parse(s) for n, s in allowed.items()})
+
+
 def test_the_lighting_methods_are_listed_once():
     """The lighting methods are named by the registry (phyir.estimators, filled from the entry points),
     not by a tuple of their names kept in step by hand."""

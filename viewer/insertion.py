@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 
 import moderngl
 import numpy as np
@@ -64,14 +63,9 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
     def __init__(self, ctx: moderngl.Context):
         self.ctx = ctx
         self.programs = ProgramCache(ctx)
-        self._meshes: dict[int, tuple] = {}
-        self._objects: dict[int, ObjectGPU] = {}
-        self._relights: dict = {}
-        self._relight_pool = None
-        self._field_lock = threading.Lock()
-        self._relight_after = 0.0
-        self._fbos: dict[str, tuple] = {}
-        self._tile_keys: dict[tuple, tuple] = {}
+        ObjectStates.__init__(self)  # meshes and per-object lighting
+        ImpostorPasses.__init__(self)  # atlases and their tiles
+        self._draft: tuple = ()  # draft_targets()
         self.scene: PanoScene | None = None
         self.field: LightAtPoint | None = None
         self.surface: DepthSurface | None = None
@@ -95,8 +89,8 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.programs.fullscreen(prog).render(moderngl.TRIANGLES, vertices=3)
 
     # -- textures ----------------------------------------------------------------------------
-    def _equirect(self, array: np.ndarray, dtype: str = "f4", nearest: bool = False,
-                  mipmaps: bool = False) -> moderngl.Texture:
+    def equirect_texture(self, array: np.ndarray, dtype: str = "f4", nearest: bool = False,
+                         mipmaps: bool = False) -> moderngl.Texture:
         a = np.ascontiguousarray(array)
         h, w = a.shape[:2]
         c = 1 if a.ndim == 2 else a.shape[2]
@@ -113,7 +107,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
 
     def probe_texture(self, levels: list[torch.Tensor]) -> moderngl.Texture:
         """A probe with its area-weighted mip levels ``[3, h/2^k, w/2^k]`` (object_lighting.probe_mips)."""
-        tex = self._equirect(levels[0].permute(1, 2, 0).numpy(), mipmaps=True)
+        tex = self.equirect_texture(levels[0].permute(1, 2, 0).numpy(), mipmaps=True)
         tex.build_mipmaps(0, len(levels) - 1)
         for k, lv in enumerate(levels[1:], 1):
             tex.write(np.ascontiguousarray(lv.permute(1, 2, 0).numpy(), np.float32).tobytes(), level=k)
@@ -130,32 +124,29 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         self.field = LightAtPoint(scene, surface=self.surface)  # the panorama's light, at the object
         normal = scene.normal if scene.normal is not None else pano.normals_from_depth(scene.depth.float())
         tex = self._scene_tex
-        tex["scene_depth"] = self._equirect(scene.depth[0].float().numpy(), nearest=True)
-        tex["scene_normal"] = self._equirect(_hwc(normal), "f2", nearest=True)
+        tex["scene_depth"] = self.equirect_texture(scene.depth[0].float().numpy(), nearest=True)
+        tex["scene_normal"] = self.equirect_texture(_hwc(normal), "f2", nearest=True)
         albedo = scene.albedo if scene.albedo is not None else torch.full_like(scene.image, 0.5)
-        tex["scene_albedo"] = self._equirect(_hwc(albedo), "f2")
+        tex["scene_albedo"] = self.equirect_texture(_hwc(albedo), "f2")
         # float32 keeps untouched pixels bit-exact in exports; half floats above 4K (memory)
         image = _hwc(scene.image)
         big = scene.size[1] > 4096
-        tex["scene_image"] = self._equirect(np.minimum(image, IMAGE_HALF_MAX) if big else image,
-                                            "f2" if big else "f4", mipmaps=True)
-        tex["march_depth"] = self._equirect(self.surface.depth_tex[0, 0, :, 1:-1].numpy())
-        tex["march_jump"] = self._equirect(self.surface.jump_tex[0, 0, :, 1:-1].numpy(), nearest=True)
+        tex["scene_image"] = self.equirect_texture(np.minimum(image, IMAGE_HALF_MAX) if big else image,
+                                                   "f2" if big else "f4", mipmaps=True)
+        tex["march_depth"] = self.equirect_texture(self.surface.depth_tex[0, 0, :, 1:-1].numpy())
+        tex["march_jump"] = self.equirect_texture(self.surface.jump_tex[0, 0, :, 1:-1].numpy(), nearest=True)
         rough = scene.roughness if scene.roughness is not None else torch.ones_like(scene.depth)
         metal = scene.metallic if scene.metallic is not None else torch.zeros_like(scene.depth)
-        tex["scene_rm"] = self._equirect(_hwc(torch.cat([rough, metal])), nearest=True)
+        tex["scene_rm"] = self.equirect_texture(_hwc(torch.cat([rough, metal])), nearest=True)
         self.has_albedo = scene.albedo is not None
 
     def release_scene(self) -> None:
         self.wait_lighting()  # jobs read the old field
-        self._relights.clear()
         for t in self._scene_tex.values():
             t.release()
         self._scene_tex.clear()
-        for st in self._objects.values():
-            st.release()
-        self._objects.clear()
-        self._tile_keys.clear()  # the atlas tiles were shaded with this scene
+        self.release_object_states()
+        self.forget_tiles()  # the atlas tiles were shaded with this scene
 
     def bind_scene(self, prog: moderngl.Program, first_unit: int = 3) -> None:
         """Bind the panorama's layers to units 3-9 and set their uniforms (units 0-2 and 10-15 are the
@@ -245,7 +236,7 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         env = self.probe_texture(probe_mips(probe))
         spec_levels = probe_mips(residual)
         spec = self.probe_texture(spec_levels)
-        irr = self._equirect(irradiance_map(probe).permute(1, 2, 0).numpy())
+        irr = self.equirect_texture(irradiance_map(probe).permute(1, 2, 0).numpy())
         out = self.ctx.texture((W, H), 4, dtype="f4")
         fbo = self.ctx.framebuffer([out])
         try:
@@ -275,16 +266,21 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
     def draft_targets(self, w: int, h: int) -> tuple:
         """The viewer's draft composite target at w x h (kept while the size stays): a framebuffer
         and its linear-filtered float texture (the receivers' kept share)."""
-        have = self._fbos.get("draft")
-        if have is not None and have[1].size == (w, h):
+        have = self._draft
+        if have and have[1].size == (w, h):
             return have
-        for r in have or ():
+        for r in have:
             r.release()
         keep = self.ctx.texture((w, h), 4, dtype="f2")
         keep.filter = (moderngl.LINEAR, moderngl.LINEAR)
         keep.repeat_x = keep.repeat_y = False
-        self._fbos["draft"] = (self.ctx.framebuffer([keep]), keep)
-        return self._fbos["draft"]
+        self._draft = (self.ctx.framebuffer([keep]), keep)
+        return self._draft
+
+    def _release_draft(self) -> None:
+        for r in self._draft:
+            r.release()
+        self._draft = ()
 
     def fork(self) -> InsertionRenderer:
         """A renderer of the same scene with object states, atlases and tile keys of its own, sharing
@@ -293,40 +289,26 @@ class InsertionRenderer(ObjectStates, ImpostorPasses):
         draw from the other.  Free it with :meth:`release_fork` before this one; fork again after
         :meth:`set_scene`."""
         twin = copy.copy(self)
-        twin._objects, twin._relights, twin._fbos, twin._tile_keys = {}, {}, {}, {}
-        twin._relight_pool = None
+        twin.own_object_states()
+        twin.own_atlases()
+        twin._draft = ()
         twin.drawn_faces = {"impostor": 0, "shadow": 0}
         return twin
 
     def release_fork(self) -> None:
         """Free what a fork owns: its object states, atlases and lighting worker."""
-        if self._relight_pool is not None:
-            self._relight_pool.shutdown(cancel_futures=True)
-        self._relights.clear()
-        for st in self._objects.values():
-            st.release()
-        self._objects.clear()
-        self._tile_keys.clear()
-        self._release_fbos()
-
-    def _release_fbos(self) -> None:
-        for entry in self._fbos.values():
-            for r in entry:
-                if hasattr(r, "release"):
-                    r.release()
-        self._fbos.clear()
+        self.stop_lighting_worker(cancel=True)
+        self.release_object_states()
+        self.forget_tiles()
+        self.release_atlases()
+        self._release_draft()
 
     def release(self) -> None:
         self.release_scene()
-        for _mesh, vbo, ibo, vaos in self._meshes.values():
-            for v in vaos.values():
-                v.release()
-            vbo.release()
-            ibo.release()
-        self._meshes.clear()
-        self._release_fbos()
-        if self._relight_pool is not None:
-            self._relight_pool.shutdown()
+        self.release_meshes()
+        self.release_atlases()
+        self._release_draft()
+        self.stop_lighting_worker()
         self.programs.release()
         self.dfg.release()
 

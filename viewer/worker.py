@@ -288,7 +288,7 @@ def preload() -> None:
     the GIL for its whole unmarshal-and-execute (numpy.ma: ~40 ms alone, 160-200 ms inside a job on
     the loaded 2-core machine, the worker's lower priority stretching it), and the UI thread retakes
     the GIL after every GL call: a job importing them froze the UI that long
-    (tests/viewer/test_viewer_warmup.py)."""
+    (tests/viewer/app/test_viewer_warmup.py)."""
     for name in JOB_MODULES:
         if importlib.util.find_spec(name.partition(".")[0]) is not None:  # optional packages
             importlib.import_module(name)

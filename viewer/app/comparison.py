@@ -16,7 +16,7 @@ from viewer.renderer import Compare
 class Comparison:
     """Part of :class:`viewer.app.App`: comparing with a reference image."""
 
-    def _init_comparison(self) -> None:
+    def init_comparison(self) -> None:
         self.reference: Entry | None = None
         self.compare_mode: str | None = None  # None: the layer alone
         self.split = 0.5  # split view: where the reference starts, fraction of the view's width
@@ -33,7 +33,7 @@ class Comparison:
         else:
             self.reference = self.images[index]
             self.reference.held = False
-            self._schedule()  # its model's layers, to compare those too
+            self.schedule_jobs()  # its model's layers, to compare those too
         self.request_redraw()
 
     @property
@@ -68,7 +68,7 @@ class Comparison:
         self.compare_extent[mode] = None if extent is None else float(extent)
         self.request_redraw()
 
-    def _forget_image(self, e: Entry) -> None:
+    def forget_image(self, e: Entry) -> None:
         """Image ``e`` was closed: it is no longer the reference."""
         if self.reference is e:
             self.set_reference(None)
@@ -107,7 +107,7 @@ class Comparison:
             self._auto_extent = (key, compare.auto_extent(values))
         return self._auto_extent[1]
 
-    def _compare_spec(self, layer: str) -> tuple[Compare, int] | None:
+    def compare_spec(self, layer: str) -> tuple[Compare, int] | None:
         """The view's comparison for ``layer`` and the reference texture's upload count (cache key)."""
         if self.compare_mode is None or self.compare_problem(layer) is not None:
             return None
@@ -120,12 +120,12 @@ class Comparison:
 
     def _reference_texture(self, layer: str):
         """The reference's texture of ``layer``, uploaded here if it is new (the reference is
-        usually not the image shown, whose uploads ``_upload_some`` spreads over frames)."""
+        usually not the image shown, whose uploads ``upload_some`` spreads over frames)."""
         e = self.reference
         gt = self.image_state(e, "show_gt") and self.image_state(e, "gt") is not None
         key = ("gt" if gt else "pred", layer)
-        textures, versions = self.image_state(e, "_textures"), self.image_state(e, "_tex_version")
-        pending = self.image_state(e, "_pending")
+        textures, versions = self.image_state(e, "layer_textures"), self.image_state(e, "texture_versions")
+        pending = self.image_state(e, "pending_uploads")
         if key not in textures or key in pending:
             textures[key] = self.renderer.texture(self.reference_arrays()[layer], textures.get(key))
             versions[key] = versions.get(key, 0) + 1

@@ -117,15 +117,15 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self.frame_parts: dict[str, tuple[float, float]] = {}  # the last frame's parts
         self.sync_parts = False  # wait for the GL after each part, so GL time lands in its part
         # GL resources
-        self._textures: dict[tuple[str, str], moderngl.Texture] = {}
-        self._tex_version: dict[tuple[str, str], int] = {}  # uploads per texture: in the view's cache key
-        self._pending: list[tuple[str, str]] = []
+        self.layer_textures: dict[tuple[str, str], moderngl.Texture] = {}
+        self.texture_versions: dict[tuple[str, str], int] = {}  # uploads per texture: in the view's cache key
+        self.pending_uploads: list[tuple[str, str]] = []
         self._fit_pending = True
         self._redraw = 2
-        self._last_uploaded = False
-        self._init_images()  # several images open (viewer.app.images), a reference to compare with
-        self._init_comparison()
-        self._attach_objects()
+        self.uploaded_last_frame = False
+        self.init_images()  # several images open (viewer.app.images), a reference to compare with
+        self.init_comparison()
+        self.attach_objects()
         self.gui = None
         if ui:
             from viewer.ui.gui import Gui
@@ -195,10 +195,10 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self.surface.refresh()
         self.poll()
         parts.mark("poll")
-        uploaded = self._upload_some()
+        uploaded = self.upload_some()
         if uploaded:
             self.request_redraw(2)  # the view catches up next frame
-        self._last_uploaded = uploaded
+        self.uploaded_last_frame = uploaded
         parts.mark("upload")
         fw, fh = self.surface.framebuffer_size
         if self.gui is not None:
@@ -219,7 +219,7 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self.objects.refine(spec, tuple(rect[2:]), final=capture)
         if spec is not None:
             # a frame that uploaded a texture shows the previous picture: the redraw waits a frame
-            self.renderer.render(target, rect, spec, fb_size=(fw, fh), cache_key=self._view_key(spec, rect),
+            self.renderer.render(target, rect, spec, fb_size=(fw, fh), cache_key=self.view_key(spec, rect),
                                  stale_ok=uploaded)
         parts.mark("view")
         if self.gui is not None:
@@ -239,7 +239,7 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
             self.job_frames += 1
         self._redraw = max(0, self._redraw - 1)
         if self._screenshot_request is not None and not capture:
-            self._save_requested_screenshot()
+            self.save_requested_screenshot()
         return dt
 
     @gl_current
@@ -251,8 +251,8 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
                 self.frame()
             else:
                 self.poll()
-                self._upload_some()
-            if not self.busy and not self._pending:
+                self.upload_some()
+            if not self.busy and not self.pending_uploads:
                 return True
             if self.window is not None:
                 self.surface.wait(0.01)
@@ -260,13 +260,18 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
                 time.sleep(0.005)
         return False
 
-    def _title(self) -> None:
+    def update_title(self) -> None:
         if self.window is not None:
             self.surface.set_title(f"{self.name} - {self.title}" if self.name else self.title)
 
     # -- event loop ---------------------------------------------------------------------------
     def request_redraw(self, frames: int = 3) -> None:
         self._redraw = max(self._redraw, frames)
+
+    @property
+    def redraw_pending(self) -> bool:
+        """Whether frames are still owed (a change asked for them)."""
+        return self._redraw > 0
 
     def run(self) -> None:
         """The interactive loop: draws only when something changed (input, worker, animation, a
@@ -277,7 +282,7 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
 
     def close(self) -> None:
         """Stop the control socket and the worker and free the GL resources, the UI and the window."""
-        self._stop_remote()
+        self.stop_remote()
         self.worker.cancel()
         self.worker.set_wake(None)
         self.worker.join(10.0)  # let torch finish its op: exiting under it aborts the process
@@ -286,9 +291,9 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
                 self.gui.make_current()
                 self.gui.shutdown()
                 self.gui = None
-            self._clear()
-            self._close_images()
-            self._detach_objects()
+            self.clear_shown()
+            self.close_other_images()
+            self.detach_objects()
             self.renderer.release()
         self.surface.close()
         sys.setswitchinterval(self._switch_interval)

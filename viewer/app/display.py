@@ -17,34 +17,35 @@ from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS, Display, Frame, Marke
 class DisplaySettings:
     """Part of :class:`viewer.app.App`: display state, textures and the view's frame."""
 
-    def _auto_ranges(self, ranges: dict[str, tuple[float, float]]) -> None:
+    def apply_auto_ranges(self, ranges: dict[str, tuple[float, float]]) -> None:
         """Automatic colour-map ranges; with ground truth its ranges rule, so G compares like with like."""
         for name, r in ranges.items():
             if self.scalar[name].auto and not (self.gt is not None and name in self.gt_arrays):
                 self.scalar[name].range = r
 
     # -- textures -----------------------------------------------------------------------------
-    def _queue_upload(self, source: str, arrays: dict[str, np.ndarray]) -> None:
+    def queue_upload(self, source: str, arrays: dict[str, np.ndarray]) -> None:
         for name in arrays:
             key = (source, name)
-            if key not in self._pending:
-                self._pending.append(key)
+            if key not in self.pending_uploads:
+                self.pending_uploads.append(key)
 
-    def _upload_some(self) -> bool:
+    def upload_some(self) -> bool:
         """Upload queued layers, the shown one first, within a time budget per frame; True if any
         was uploaded."""
-        if not self._pending:
+        if not self.pending_uploads:
             return False
         shown = ("gt" if self.show_gt else "pred", self.layer)
-        self._pending.sort(key=lambda k: k != shown)
+        self.pending_uploads.sort(key=lambda k: k != shown)
         t0 = time.perf_counter()
-        while self._pending and (time.perf_counter() - t0 < UPLOAD_BUDGET_S or self._pending[0] == shown):
-            source, name = self._pending.pop(0)
+        pending = self.pending_uploads
+        while pending and (time.perf_counter() - t0 < UPLOAD_BUDGET_S or pending[0] == shown):
+            source, name = pending.pop(0)
             arrays = self.gt_arrays if source == "gt" else self.arrays
             if name in arrays:
                 key = (source, name)
-                self._textures[key] = self.renderer.texture(arrays[name], self._textures.get(key))
-                self._tex_version[key] = self._tex_version.get(key, 0) + 1
+                self.layer_textures[key] = self.renderer.texture(arrays[name], self.layer_textures.get(key))
+                self.texture_versions[key] = self.texture_versions.get(key, 0) + 1
         return True
 
     # -- state changes (what clicks and keys call) --------------------------------------------
@@ -52,7 +53,7 @@ class DisplaySettings:
         if name not in LAYERS:
             raise PhyIRError(f"unknown layer {name!r} (choose from {', '.join(LAYERS)})")
         self.layer = name
-        self._redraw = max(self._redraw, 2)
+        self.request_redraw(2)
 
     def set_source(self, gt: bool) -> None:
         """Show the ground truth (True) or the prediction/file layers (False)."""
@@ -74,11 +75,11 @@ class DisplaySettings:
         if name not in CHANNELS:
             raise PhyIRError(f"unknown channel {name!r} (choose from {', '.join(CHANNELS)})")
         self.hdr.channel = name
-        self._redraw = max(self._redraw, 2)
+        self.request_redraw(2)
 
     def set_exposure(self, ev: float) -> None:
         self.hdr.exposure = float(ev)
-        self._dirty_pins()
+        self.dirty_pins()
 
     def set_offset(self, offset: float) -> None:
         self.hdr.offset = float(offset)
@@ -87,7 +88,7 @@ class DisplaySettings:
         if name not in TONEMAPS:
             raise PhyIRError(f"unknown tone map {name!r} (choose from {', '.join(TONEMAPS)})")
         self.hdr.tonemap = name
-        self._dirty_pins()
+        self.dirty_pins()
 
     def _scalar(self, layer: str | None) -> ScalarDisplay:
         name = layer or self.layer
@@ -129,7 +130,7 @@ class DisplaySettings:
         if self.size is None:
             return None
         src = "gt" if self.show_gt and self.gt is not None else "pred"
-        layers = {name: t for (s, name), t in self._textures.items() if s == src}
+        layers = {name: t for (s, name), t in self.layer_textures.items() if s == src}
         layer = self.layer if self.layer in layers else "image"
         tex = layers.get(layer)
         if tex is None:
@@ -137,16 +138,16 @@ class DisplaySettings:
         near = self.view_kind == "equirect" and self.view.zoom > NEAREST_ZOOM
         if layer == "probes":  # the atlas has its own resolution: nearest once its texels are big
             near = self.view_kind == "equirect" and self.view.zoom * tex.size[0] / self.size[1] > NEAREST_ZOOM
-        versus = self._compare_spec(layer)  # viewer.app.comparison: against the reference
+        versus = self.compare_spec(layer)  # viewer.app.comparison: against the reference
         extras = {"marker_radius": 9.0 * self.ui_scale, "layers": layers, "scene": self.scene,
                   "insert": layer == "image" and versus is None,
-                  "layer_version": self._tex_version.get((src, layer), 0),
+                  "layer_version": self.texture_versions.get((src, layer), 0),
                   "reference_version": versus[1] if versus else 0}
         return Frame(texture=tex, pano_size=self.size, view=self.view, display=self.display(layer),
                      nearest=near, markers=self.markers(), background=BACKGROUND, extras=extras,
                      compare=versus[0] if versus else None)
 
-    def _view_key(self, spec: Frame, rect) -> tuple | None:
+    def view_key(self, spec: Frame, rect) -> tuple | None:
         """Everything the view's picture depends on (the renderer redraws it when this changes);
         None when linear passes draw (they keep their own state) or objects are dragged."""
         objects = ()
@@ -155,7 +156,7 @@ class DisplaySettings:
             if objects is None:
                 return None
         fields = dataclasses.astuple
-        version = next((self._tex_version.get(k, 0) for k, t in self._textures.items()
+        version = next((self.texture_versions.get(k, 0) for k, t in self.layer_textures.items()
                         if t is spec.texture), 0)
         return (id(spec.texture), version, spec.pano_size, fields(spec.view), fields(spec.display),
                 spec.nearest, tuple(map(fields, spec.markers)), spec.background, spec.extras["marker_radius"],

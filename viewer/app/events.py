@@ -17,29 +17,29 @@ class WorkerEvents:
         self.check_file_changed()
         events = self.worker.poll()
         if events:
-            with self._job_shown(events):  # viewer.app.images: the image the job is for
+            with self.job_shown(events):  # viewer.app.images: the image the job is for
                 for event in events:
                     self._handlers[type(event)](self, event)
         return bool(events)
 
     def _on_loaded(self, loaded: Loaded) -> None:
-        self._begin_opened()
+        self.begin_opened()
         self.scene = loaded.scene
         self.path, self.name = loaded.path, loaded.name
-        self._watch_stamp = self._file_stamp()
+        self._watch_stamp = self.file_stamp()
         self.arrays = dict(loaded.arrays)
-        self._queue_upload("pred", loaded.arrays)
-        self._auto_ranges(loaded.ranges)
+        self.queue_upload("pred", loaded.arrays)
+        self.apply_auto_ranges(loaded.ranges)
         for text in loaded.notes:
             self.note("warning", text)
         H, W = self.scene.size
         self.note("info", f"opened {loaded.name} ({W}x{H}; layers: {', '.join(loaded.arrays)})")
         self._geometry_confidence()
-        self.timings["load"] = time.perf_counter() - self._job_start
+        self.timings["load"] = time.perf_counter() - self.job_started
         if self.recent is not None and loaded.path is not None:
             self.recent.add(loaded.path)
-        self._refresh_pins()
-        self._title()
+        self.refresh_pins()
+        self.update_title()
 
     def _on_progress(self, event: Progress) -> None:
         old = self.progress or (None, "")
@@ -49,13 +49,13 @@ class WorkerEvents:
         arrays, seconds = event.arrays, event.seconds
         self.scene = event.scene
         self.arrays.update(arrays)
-        self._queue_upload("pred", arrays)
-        self._auto_ranges(event.ranges)
+        self.queue_upload("pred", arrays)
+        self.apply_auto_ranges(event.ranges)
         self.timings["model"] = seconds
         extra = " (G: prediction / ground truth)" if self.gt is not None else ""
         self.note("info", f"model: {', '.join(arrays)} in {seconds:.1f} s{extra}")
         self._geometry_confidence()
-        self._refresh_pins()
+        self.refresh_pins()
 
     def _geometry_confidence(self) -> None:
         """How far to trust the scene's geometry (phyir.evaluation.real.scene_confidence), for the status
@@ -81,24 +81,24 @@ class WorkerEvents:
         for name in list(self.arrays):
             if name != "image":
                 del self.arrays[name]
-                tex = self._textures.pop(("pred", name), None)
+                tex = self.layer_textures.pop(("pred", name), None)
                 if tex is not None:
                     tex.release()
         self.scene = PanoScene(image=gt.image, meta=dict(gt.meta))
-        self._set_gt(gt, event.arrays)
+        self.set_ground_truth(gt, event.arrays)
         self.show_gt = True  # the file's layers, at once; G switches to the prediction when it is in
         self.note("info", "the file's layers are ground truth: predicting all layers to compare (G switches)")
-        self._refresh_pins()
+        self.refresh_pins()
 
     def _on_rendered(self, event: Rendered) -> None:
         if event.gt:
             self.timings["render_gt"] = event.seconds
             self.gt_arrays.update(event.arrays)
-            self._queue_upload("gt", event.arrays)
+            self.queue_upload("gt", event.arrays)
         else:
             self.timings["render"] = event.seconds
             self.arrays.update(event.arrays)
-            self._queue_upload("pred", event.arrays)
+            self.queue_upload("pred", event.arrays)
 
     def _on_note(self, event: Note) -> None:
         self.note("info", event.text)
@@ -106,15 +106,15 @@ class WorkerEvents:
     def _on_failed(self, event: Failed) -> None:
         self.note("error", event.text if event.stage == "loading" else f"{event.stage} failed: {event.text}")
         if event.stage == "loading":
-            self._open_failed()
+            self.open_failed()
         self.busy, self.progress = False, None
-        self.timings["job"] = time.perf_counter() - self._job_start
+        self.timings["job"] = time.perf_counter() - self.job_started
 
     def _on_done(self, _event: Done) -> None:
         self.busy, self.progress = False, None
-        self.timings["job"] = time.perf_counter() - self._job_start
-        self._refresh_pins()
-        self._add_queued_objects()
+        self.timings["job"] = time.perf_counter() - self.job_started
+        self.refresh_pins()
+        self.add_queued_objects()
 
     # each event type's handler (functions of this class body, called with the App)
     _handlers = {Loaded: _on_loaded, Progress: _on_progress, LayersReady: _on_layers, GroundTruth: _on_gt,

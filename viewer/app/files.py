@@ -52,7 +52,7 @@ class FileActions:
             path = os.fspath(source)
             shown = name or Path(path).name
         if self.scene is None:  # nothing to keep: show the new name at once
-            self._clear()
+            self.clear_shown()
             self.path, self.name = path, shown
         # the current scene stays until the new one has loaded (a file that fails to open keeps it)
         self._opening = _Opening(path, shown, None if gt is None else
@@ -60,10 +60,10 @@ class FileActions:
         self.progress = (None, f"opening {shown}")
         self.busy = True
         self.job_max_frame, self.job_frames, self.job_max_parts = 0.0, 0, {}
-        self._job_start = time.perf_counter()
+        self.job_started = time.perf_counter()
         run_model = self.run_model if model is None else model and self.run_model
         self.worker.start(source, name=name, compare=compare, run_model=run_model)
-        self._title()
+        self.update_title()
 
     @property
     def opening(self) -> str | None:
@@ -76,7 +76,7 @@ class FileActions:
             raise PhyIRError("nothing to reload: the scene did not come from a file")
         self.open(self.path)
 
-    def _file_stamp(self) -> tuple | None:
+    def file_stamp(self) -> tuple | None:
         try:
             st = os.stat(self.path) if self.path else None
         except OSError:
@@ -90,34 +90,34 @@ class FileActions:
         if not self.watch or self.busy or self.path is None or now - self._watch_last < 1.0:
             return False
         self._watch_last = now
-        stamp = self._file_stamp()
+        stamp = self.file_stamp()
         if stamp is None or stamp == self._watch_stamp:
             return False
         self.note("info", f"{self.name} changed on disk: reloading")
         self.reload()
         return True
 
-    def _begin_opened(self) -> None:
+    def begin_opened(self) -> None:
         """The file being opened has loaded: the previous scene goes, the given ground truth comes."""
         opening, self._opening = self._opening, None
-        self._clear()
+        self.clear_shown()
         self._watch_stamp = None  # set from the file once its layers are in (_on_loaded)
         if opening is not None and opening.gt is not None:
-            self._set_gt(opening.gt)
+            self.set_ground_truth(opening.gt)
 
-    def _open_failed(self) -> None:
+    def open_failed(self) -> None:
         """The file being opened could not be read: keep showing the current scene."""
         opening, self._opening = self._opening, None
         if opening is not None and self.scene is not None:
             self.note("info", f"still showing {self.name}")
 
-    def _clear(self) -> None:
-        for tex in self._textures.values():
+    def clear_shown(self) -> None:
+        for tex in self.layer_textures.values():
             tex.release()
-        self._textures.clear()
-        self._pending.clear()
+        self.layer_textures.clear()
+        self.pending_uploads.clear()
         for pin in self.pins:
-            self._release_pin(pin)
+            self.release_pin(pin)
         self.pins.clear()
         self.scene, self.arrays, self.gt, self.gt_arrays = None, {}, None, {}
         self.show_gt = False
@@ -125,15 +125,15 @@ class FileActions:
         self.timings = {}
         self._fit_pending = True
 
-    def _set_gt(self, gt: PanoScene, arrays: dict[str, np.ndarray] | None = None) -> None:
+    def set_ground_truth(self, gt: PanoScene, arrays: dict[str, np.ndarray] | None = None) -> None:
         """Ground truth: a scene given to ``open`` (arrays made here) or the file's layers in compare
         mode (arrays made, and their ranges applied, when the file loaded)."""
         if arrays is None:
             arrays = scene_arrays(gt)
             self.gt = None  # so that its ranges apply
-            self._auto_ranges(auto_ranges(arrays))
+            self.apply_auto_ranges(auto_ranges(arrays))
         self.gt, self.gt_arrays = gt, dict(arrays)
-        self._queue_upload("gt", self.gt_arrays)
+        self.queue_upload("gt", self.gt_arrays)
 
     def cancel(self) -> None:
         """Stop the running job (keeps the layers that arrived)."""
@@ -153,7 +153,7 @@ class FileActions:
         self._screenshot_request = os.fspath(path)
         self.request_redraw()
 
-    def _save_requested_screenshot(self) -> None:
+    def save_requested_screenshot(self) -> None:
         """After a frame: the screenshot asked for while it was built, with a note on the outcome."""
         out, self._screenshot_request = self._screenshot_request, None
         if out is None:
@@ -188,7 +188,7 @@ class FileActions:
         """Draw a frame of the current state and return it as uint8 RGB (rows from the top);
         written atomically as PNG to ``path`` if given."""
         self.frame(capture=True)
-        while self._last_uploaded or self._pending:  # the view lags uploads by a frame
+        while self.uploaded_last_frame or self.pending_uploads:  # the view lags uploads by a frame
             self.frame(capture=True)
         img = self.last_capture
         if path is not None:

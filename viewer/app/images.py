@@ -11,7 +11,7 @@ image first, with the model; then the reference (``viewer.app.comparison``), wit
 predicted layers can be compared too; then every other image, read only -- the model runs for an
 image when it is shown.  A job for an image that is neither current nor the reference gives way
 when the current one needs the worker.  A job's events go to the image it was started for, shown
-or not (``_job_shown``).
+or not (``job_shown``).
 """
 
 from __future__ import annotations
@@ -27,14 +27,15 @@ from viewer.app.common import gl_current
 from viewer.worker import Done, Failed, Loaded
 
 PER_IMAGE = ("path", "name", "scene", "confidence", "arrays", "gt", "gt_arrays", "show_gt", "pins",
-             "timings", "_textures", "_tex_version", "_pending", "_fit_pending", "_watch_stamp")
+             "timings", "layer_textures", "texture_versions", "pending_uploads", "_fit_pending",
+             "_watch_stamp")
 
 
 def fresh_state() -> dict:
     """The PER_IMAGE attributes of an image not read yet."""
     return {"path": None, "name": "", "scene": None, "confidence": None, "arrays": {}, "gt": None,
-            "gt_arrays": {}, "show_gt": False, "pins": [], "timings": {}, "_textures": {},
-            "_tex_version": {}, "_pending": [], "_fit_pending": True, "_watch_stamp": None}
+            "gt_arrays": {}, "show_gt": False, "pins": [], "timings": {}, "layer_textures": {},
+            "texture_versions": {}, "pending_uploads": [], "_fit_pending": True, "_watch_stamp": None}
 
 
 @dataclass(eq=False)
@@ -62,7 +63,7 @@ class _Job:
 class ImageList:
     """Part of :class:`viewer.app.App`: the open images."""
 
-    def _init_images(self) -> None:
+    def init_images(self) -> None:
         self.images: list[Entry] = [Entry()]
         self.current = 0
         self._job: _Job | None = None
@@ -104,10 +105,10 @@ class ImageList:
             self.hover = None
             if self.size is not None:  # another size: fitted, as panorama coordinates differ
                 self._fit_pending = self.size != old_size
-            self._title()
+            self.update_title()
             self.request_redraw()
         self.entry.held = False
-        self._schedule()
+        self.schedule_jobs()
 
     def next_image(self, step: int = 1) -> None:
         """The next (``step`` 1) or previous (-1) image, wrapping around."""
@@ -129,7 +130,7 @@ class ImageList:
             self._stash()
             self.current = current
             self._restore(self.entry)
-            self._title()
+            self.update_title()
 
     # -- adding and closing ---------------------------------------------------------------------
     def find_image(self, source: str | os.PathLike | PanoScene) -> Entry | None:
@@ -155,7 +156,7 @@ class ImageList:
         else:
             e = Entry(src, options)
             self.images.append(e)
-        self._schedule()
+        self.schedule_jobs()
         return e
 
     def add_image(self, source: str | os.PathLike | PanoScene, **options) -> Entry:
@@ -172,7 +173,7 @@ class ImageList:
             self.worker.cancel()
             self.busy, self.progress, self._opening, self._job = False, None, None, None
         if len(self.images) == 1:
-            self._clear()
+            self.clear_shown()
             self.path, self.name, self._watch_stamp = None, "", None
             self.images[0] = Entry()
         else:
@@ -183,20 +184,20 @@ class ImageList:
             shown = self.entry
             self.images.remove(e)
             self.current = self.images.index(shown)
-        self._forget_image(e)
+        self.forget_image(e)
         self.request_redraw()
-        self._title()
+        self.update_title()
 
     def _free(self, e: Entry) -> None:
         """Release the GL resources of image ``e`` (not the one shown)."""
-        for tex in e.state["_textures"].values():
+        for tex in e.state["layer_textures"].values():
             tex.release()
-        e.state["_textures"].clear()
+        e.state["layer_textures"].clear()
         for pin in e.state["pins"]:
-            self._release_pin(pin)
+            self.release_pin(pin)
         e.state = fresh_state()
 
-    def _close_images(self) -> None:
+    def close_other_images(self) -> None:
         """Free every image but the one shown (App.close frees that one)."""
         for e in self.images:
             if e is not self.entry:
@@ -226,7 +227,7 @@ class ImageList:
             self._job.entry.held = True
         super().cancel()
 
-    def _schedule(self) -> None:
+    def schedule_jobs(self) -> None:
         """Start the next job the images need: the current one's, else the reference's, else the
         first unread image's.  A running job for another image gives way to the current one's."""
         wanted = [self.entry, getattr(self, "reference", None)]
@@ -246,7 +247,7 @@ class ImageList:
             return
 
     @contextlib.contextmanager
-    def _job_shown(self, events: list):
+    def job_shown(self, events: list):
         """Apply worker events to the image the job is for, then note how far it got."""
         job = self._job
         if job is None or job.entry not in self.images:
@@ -275,4 +276,4 @@ class ImageList:
                     self._job = None
                     self.close_image(self.images.index(e))
         if not self.busy:
-            self._schedule()
+            self.schedule_jobs()

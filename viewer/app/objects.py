@@ -10,7 +10,7 @@ from viewer.app import cli_objects
 class InsertedObjects:
     """Part of :class:`viewer.app.App`: wiring the inserted objects into the view."""
 
-    def _attach_objects(self) -> None:
+    def attach_objects(self) -> None:
         """Make the objects panel and put its pass before the other overlays (the probe markers)."""
         from viewer.ui.objects_panel import ObjectsPanel
 
@@ -20,7 +20,7 @@ class InsertedObjects:
         self.objects_problem: str | None = None  # e.g. the camera inside an object (status bar)
         self.renderer.overlay_passes.insert(0, self.objects.hook)
 
-    def _detach_objects(self) -> None:
+    def detach_objects(self) -> None:
         """Take the objects' pass out of the renderer and free their GL resources (GL current)."""
         if self.objects.hook in self.renderer.overlay_passes:
             self.renderer.overlay_passes.remove(self.objects.hook)
@@ -34,9 +34,9 @@ class InsertedObjects:
         """Objects to insert once the scene has depth and probes (``phyir-view --object ...`` with a
         window: the model may still be running); a one-line error banner if one can't be added."""
         self._queued_objects = list(specs)
-        self._add_queued_objects()
+        self.add_queued_objects()
 
-    def _add_queued_objects(self) -> None:
+    def add_queued_objects(self) -> None:
         if not self._queued_objects or not self.objects.sync():
             return
         specs, self._queued_objects = self._queued_objects, []

@@ -29,7 +29,7 @@ class Pins:
     @gl_current
     def unpin(self, index: int = -1) -> None:
         if self.pins:
-            self._release_pin(self.pins.pop(index))
+            self.release_pin(self.pins.pop(index))
 
     def set_pin_exposure(self, index: int, ev: float) -> None:
         self.pins[index].exposure = float(ev)
@@ -40,16 +40,16 @@ class Pins:
         arrays = self.gt_arrays if source == "gt" else self.arrays
         return pixel_values(arrays, u, v, self.size) if self.size else {}
 
-    def _refresh_pins(self) -> None:
+    def refresh_pins(self) -> None:
         for pin in self.pins:
             update_pin(pin, self.scene, self.arrays, self.gt)
             pin.textures["stale"] = {"pred", "gt"}
 
-    def _dirty_pins(self) -> None:
+    def dirty_pins(self) -> None:
         for pin in self.pins:
             pin.textures["stale"] = {"pred", "gt"}
 
-    def _release_pin(self, pin: Pin) -> None:
+    def release_pin(self, pin: Pin) -> None:
         for obj in pin.textures.values():
             if isinstance(obj, (moderngl.Texture, moderngl.Framebuffer)):
                 obj.release()

@@ -48,9 +48,9 @@ class Remote:
         changed = self.poll() or changed
         animating = self.gui is not None and self.gui.animating()
         refining = self.objects.refining()
-        if changed or self._redraw > 0 or self.busy or self._pending or animating or refining:
+        if changed or self.redraw_pending or self.busy or self.pending_uploads or animating or refining:
             self.frame()
-        if self._redraw > 0 or self._pending:
+        if self.redraw_pending or self.pending_uploads:
             return 0.0
         if refining:
             return 0.01  # a background job's result shows in the next frame
@@ -78,7 +78,7 @@ class Remote:
             self.wait_events(self.step())
         return True
 
-    def _stop_remote(self) -> None:
+    def stop_remote(self) -> None:
         if self.remote is not None:
             self.remote.close()
             self.remote = None

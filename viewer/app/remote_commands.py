@@ -128,7 +128,8 @@ def status(app) -> dict:
 
     return {"current": app.current, "name": app.name, "layer": app.layer, "layers": app.available(),
             "images": [describe(k, e) for k, e in enumerate(app.images)], "reference": app.reference_index,
-            "compare": app.compare_mode, "exposure": app.hdr.exposure, "busy": bool(app.busy or app._pending),
+            "compare": app.compare_mode, "exposure": app.hdr.exposure,
+            "busy": bool(app.busy or app.pending_uploads),
             "error": app.error}
 
 

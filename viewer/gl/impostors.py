@@ -32,8 +32,21 @@ class ImpostorPasses:
     """The atlas passes and composite uniforms of :class:`viewer.insertion.InsertionRenderer` (a part
     of it: ``ctx``, ``dfg``, ``program``, ``bind_scene`` and the object states are the renderer's)."""
 
-    _fbos: dict[str, tuple]
-    _tile_keys: dict[tuple, tuple]  # (pass, rect) -> what that atlas tile holds (see prepare)
+    def __init__(self):
+        self.own_atlases()
+
+    def own_atlases(self) -> None:
+        """Start atlases and tile keys of its own (empty; a fork's are not its renderer's)."""
+        self._fbos: dict[str, tuple] = {}
+        self._tile_keys: dict[tuple, tuple] = {}  # (pass, rect) -> what that atlas tile holds (see prepare)
+
+    def release_atlases(self) -> None:
+        """Free the atlases."""
+        for entry in self._fbos.values():
+            for r in entry:
+                if hasattr(r, "release"):
+                    r.release()
+        self._fbos.clear()
 
     # -- passes -------------------------------------------------------------------------------
     def _atlas(self, name: str, size: tuple[int, int], components: int, depth: bool) -> moderngl.Framebuffer:
@@ -242,13 +255,13 @@ class ImpostorPasses:
         proxies = [(*st.centre, st.radius)] if self._quality.own_shadow_bounds else obj.world_proxies()[:16]
         set_uniform(prog, "n_own_proxies", len(proxies))
         write_array(prog, "own_proxies", proxies)
-        self._vao(mesh, prog).render(moderngl.TRIANGLES)
+        self.vertex_array(mesh, prog).render(moderngl.TRIANGLES)
 
     def _draw_depth(self, st: ObjectGPU, vp: np.ndarray, mesh: Mesh) -> None:
         prog = self.program("shadow.vert", "depth.frag")
         prog["model"].write(matrix_bytes(st.obj.model_matrix()))
         prog["view_proj"].write(matrix_bytes(vp))
-        self._vao(mesh, prog).render(moderngl.TRIANGLES)
+        self.vertex_array(mesh, prog).render(moderngl.TRIANGLES)
 
     def _shadow_steps(self, states: list[ObjectGPU], quality: Quality) -> Iterator[tuple[str, None]]:
         """Each dominant light's view of its object into a shadow-atlas tile; yields ("shadow",
@@ -279,7 +292,7 @@ class ImpostorPasses:
             prog["light_pos"] = tuple(float(c) for c in pl.position)
             mesh = st.obj.mesh.lod(quality.shadow_faces)
             self.drawn_faces["shadow"] += len(mesh.faces)
-            self._vao(mesh, prog).render(moderngl.TRIANGLES)
+            self.vertex_array(mesh, prog).render(moderngl.TRIANGLES)
             self.ctx.scissor = None
             self.ctx.disable(moderngl.DEPTH_TEST)
             self._tile_keys[("shadow", rect)] = key

@@ -76,14 +76,45 @@ def _hwc_bytes(t: torch.Tensor) -> bytes:
 
 class ObjectStates:
     """The mesh buffers and per-object lighting of :class:`viewer.insertion.InsertionRenderer` (a
-    part of it: ``ctx``, ``field``, ``surface``, ``probe_texture`` and ``_equirect`` are the renderer's)."""
+    part of it: ``ctx``, ``field``, ``surface``, ``probe_texture`` and ``equirect_texture`` are the
+    renderer's)."""
 
-    _meshes: dict[int, tuple]
-    _objects: dict[int, ObjectGPU]
-    _relights: dict[int, Relight]  # id(obj) -> its background lighting job (at most one each)
-    _relight_pool: ThreadPoolExecutor | None
-    _field_lock: threading.Lock  # the probe field's caches: one thread at a time
-    _relight_after: float  # time.monotonic() before which no background job starts
+    def __init__(self):
+        self._meshes: dict[int, tuple] = {}
+        self._field_lock = threading.Lock()  # the probe field's caches: one thread at a time
+        self._relight_after = 0.0  # time.monotonic() before which no background job starts
+        self.own_object_states()
+
+    def own_object_states(self) -> None:
+        """Start object states and a lighting worker of its own (empty); the meshes and the field's
+        lock stay (a fork shares them)."""
+        self._objects: dict[int, ObjectGPU] = {}
+        self._relights: dict[int, Relight] = {}  # id(obj) -> its background lighting job (one each)
+        self._relight_pool: ThreadPoolExecutor | None = None
+
+    def release_object_states(self) -> None:
+        """Drop the background lighting jobs and free every object's state."""
+        self._relights.clear()
+        for st in self._objects.values():
+            st.release()
+        self._objects.clear()
+
+    def release_meshes(self) -> None:
+        """Free the mesh buffers and their vertex arrays."""
+        for _mesh, vbo, ibo, vaos in self._meshes.values():
+            for v in vaos.values():
+                v.release()
+            vbo.release()
+            ibo.release()
+        self._meshes.clear()
+
+    def stop_lighting_worker(self, cancel: bool = False) -> None:
+        """Shut the background lighting thread down (``cancel``: drop the jobs that have not started)."""
+        if self._relight_pool is not None:
+            if cancel:
+                self._relight_pool.shutdown(cancel_futures=True)
+            else:
+                self._relight_pool.shutdown()
 
     # -- meshes and per-object lighting -------------------------------------------------------
     def _mesh(self, m: Mesh) -> tuple:
@@ -112,7 +143,7 @@ class ObjectStates:
             vbo.release()
             ibo.release()
 
-    def _vao(self, mesh: Mesh, prog: moderngl.Program) -> moderngl.VertexArray:
+    def vertex_array(self, mesh: Mesh, prog: moderngl.Program) -> moderngl.VertexArray:
         m, vbo, ibo, vaos = self._mesh(mesh)
         if id(prog) not in vaos:
             if "in_normal" in prog:
@@ -284,7 +315,7 @@ class ObjectStates:
         if old is not None:
             old.release()
         return (self.probe_texture(lighting.mips), self.probe_texture(lighting.spec_mips),
-                self._equirect(lighting.irradiance.permute(1, 2, 0).numpy()))
+                self.equirect_texture(lighting.irradiance.permute(1, 2, 0).numpy()))
 
     @staticmethod
     def _light_cameras(lighting: ObjectLighting, centre: np.ndarray, radius: float) -> list:

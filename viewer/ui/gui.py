@@ -13,8 +13,6 @@ import math
 import time
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from viewer.ui.images_panel import ImagesPanel
 from viewer.ui.input import ViewInput
 from viewer.ui.menu_bar import MenuBar
@@ -64,7 +62,6 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self._split_drag = False  # the split view's divide is being dragged
         self._show_help = False
         self.help_lines: list[tuple[str, float, float]] = []  # the help window's (text, x, y), for tests
-        self._lut_cache: dict[str, np.ndarray] = {}
         self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
         self.quit_requested = False
         self.scroll_to_pin: int | None = None
@@ -155,14 +152,14 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         fw, fh = app.surface.framebuffer_size
         s = self.fb_scale
         W, H = fw / s, fh / s  # logical
-        self._menu_bar()
-        self._view_window(fw, fh)
-        self._side_panel(W, H)
-        self._status_bar(W, H)
-        self._error_banner(fw, fh)
-        self._open_popups()
-        self._poll_dialog()
+        self.menu_bar()
+        self.view_window(fw, fh)
+        self.side_panel(W, H)
+        self.status_bar(W, H)
+        self.error_banner(fw, fh)
+        self.open_popups()
+        self.poll_dialog()
         if not self.io.want_capture_keyboard and not self.io.want_text_input:
-            self._keys()
+            self.handle_keys()
         if self._show_help:
-            self._help_window()
+            self.help_window()

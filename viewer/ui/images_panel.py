@@ -15,7 +15,7 @@ SPLIT_GRAB_PX = 6.0  # logical px either side of the divide that grab it
 class ImagesPanel:
     """Part of :class:`viewer.ui.gui.Gui`: several images and the reference."""
 
-    def _images_section(self) -> None:
+    def images_section(self) -> None:
         app = self.app
         ref = app.reference_index
         for k, e in enumerate(app.images):
@@ -58,9 +58,9 @@ class ImagesPanel:
             imgui.same_line()
             if imgui.small_button("auto##extent"):
                 app.set_compare_extent(None)
-            self._colour_bar(spec.compare.colormap, fmt_number(lo), fmt_number(hi))
+            self.colour_bar(spec.compare.colormap, fmt_number(lo), fmt_number(hi))
 
-    def _image_keys(self, shift: bool) -> None:
+    def image_keys(self, shift: bool) -> None:
         """[ ] and PageUp/PageDown switch images, Shift+R makes the shown one the reference (again:
         none), D / Shift+D cycle the comparison."""
         app, K, pressed = self.app, imgui.Key, imgui.is_key_pressed
@@ -80,7 +80,7 @@ class ImagesPanel:
             except PhyIRError as e:  # no reference yet: say how to choose one
                 app.note("info", str(e))
 
-    def _split_mouse(self, hovered: bool, activated: bool, active: bool, mx: float, w: float) -> bool:
+    def split_mouse(self, hovered: bool, activated: bool, active: bool, mx: float, w: float) -> bool:
         """The split view's divide: grabbed within a few pixels, dragged while held; True while it
         has the mouse (the view does not pan)."""
         app = self.app

@@ -15,7 +15,7 @@ EV_STEP, OFFSET_STEP = 0.5, 0.05  # keys E and O
 class ViewInput:
     """Part of :class:`viewer.ui.gui.Gui`: mouse over the view and keys."""
 
-    def _view_window(self, fw: int, fh: int) -> None:
+    def view_window(self, fw: int, fh: int) -> None:
         """An undecorated window over the view: an invisible button takes the mouse."""
         app = self.app
         s = self.fb_scale
@@ -32,7 +32,7 @@ class ViewInput:
         mx, my = (io.mouse_pos.x - x / s) * s, (io.mouse_pos.y - y / s) * s  # framebuffer px in the view
         hovered = imgui.is_item_hovered()
         # inserted objects first: the gizmo, click-to-drop and dragging take the mouse from the view
-        took = self._split_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(), mx, w)
+        took = self.split_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(), mx, w)
         took = app.objects.gizmo((x / s, y / s, w / s, h / s), (w, h)) or took
         took = app.objects.view_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(),
                                       imgui.is_item_deactivated(), bool(io.mouse_delta.x or io.mouse_delta.y),
@@ -96,7 +96,7 @@ class ViewInput:
                     dl.add_text(p, col32(*colours[c % len(colours)]), t)
 
     # -- keyboard ----------------------------------------------------------------------------------
-    def _keys(self) -> None:
+    def handle_keys(self) -> None:
         app, io = self.app, self.io
         K = imgui.Key
         pressed = imgui.is_key_pressed
@@ -106,7 +106,7 @@ class ViewInput:
             if pressed(K.o):
                 self.open_dialog()
             if pressed(K.q):
-                self._quit()
+                self.request_quit()
             if pressed(K.r, False) and app.path is not None:
                 app.reload()
             if pressed(K.w, False):
@@ -123,7 +123,7 @@ class ViewInput:
         if pressed(K.r, False) and not shift:
             app.set_exposure(0.0)
             app.set_offset(0.0)
-        self._image_keys(shift)  # [ ] PageUp/PageDown, Shift+R, D (viewer.ui.images_panel)
+        self.image_keys(shift)  # [ ] PageUp/PageDown, Shift+R, D (viewer.ui.images_panel)
         if pressed(K.x, False):
             app.set_channel(_cycle(CHANNELS, app.hdr.channel, -1 if shift else 1))
         if pressed(K.t, False):
@@ -151,7 +151,7 @@ class ViewInput:
         if pressed(K.h, False):
             self._show_help = not self._show_help
         if pressed(K.f12, False):
-            self._save_screenshot()
+            self.save_screenshot()
 
 
 def _cycle(options: tuple[str, ...], current: str, step: int) -> str:

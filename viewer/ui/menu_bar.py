@@ -18,7 +18,7 @@ from viewer.ui.widgets import imgui
 class MenuBar:
     """Part of :class:`viewer.ui.gui.Gui`: the menu bar, file dialogs and the help window."""
 
-    def _menu_bar(self) -> None:
+    def menu_bar(self) -> None:
         app = self.app
         if not imgui.begin_main_menu_bar():
             return
@@ -40,11 +40,11 @@ class MenuBar:
             _, app.watch = imgui.menu_item("Reload when the file changes", "", app.watch)
             imgui.separator()
             if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
-                self._save_screenshot()
+                self.save_screenshot()
             if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=app.scene is not None):
                 self._export_gltf()
             if imgui.menu_item_simple("Quit", "Ctrl+Q"):
-                self._quit()
+                self.request_quit()
             imgui.end_menu()
         if imgui.begin_menu("View"):
             for kind, key in (("equirect", "V"), ("perspective", "V")):
@@ -84,7 +84,7 @@ class MenuBar:
             imgui.end_menu()
         imgui.end_main_menu_bar()
 
-    def _open_popups(self) -> None:
+    def open_popups(self) -> None:
         app = self.app
         if self._path_popup:
             imgui.open_popup("Open path")
@@ -116,7 +116,7 @@ class MenuBar:
         filters = ["Panoramas and scenes", "*.hdr *.exr *.png *.jpg *.jpeg", "All files", "*"]
         self._dialog = pfd.open_file("Open panoramas or scenes", start, filters, pfd.opt.multiselect)
 
-    def _poll_dialog(self) -> None:
+    def poll_dialog(self) -> None:
         if self._dialog is not None and self._dialog.ready(0):
             files = self._dialog.result()
             self._dialog = None
@@ -142,7 +142,7 @@ class MenuBar:
                                       app.reference is not None):
                 app.set_compare(mode)
 
-    def _save_screenshot(self) -> None:
+    def save_screenshot(self) -> None:
         self.app.request_screenshot()
 
     def _export_gltf(self) -> None:
@@ -151,14 +151,14 @@ class MenuBar:
         except (PhyIRError, OSError) as e:  # a scene without depth, a read-only folder: say so, keep running
             self.app.note("error", f"export: {e}")
 
-    def _quit(self) -> None:
+    def request_quit(self) -> None:
         self.quit_requested = True
         if self.app.window is not None:
             import glfw
 
             glfw.set_window_should_close(self.app.window, True)
 
-    def _help_window(self) -> None:
+    def help_window(self) -> None:
         """Every key and mouse action, in sections laid out in two columns, the window sized to them
         (at 1x it fits a 1394x556 window) and centred on the view; ``help_lines`` keeps each line
         drawn and where (screen px), for tests."""

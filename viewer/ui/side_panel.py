@@ -3,6 +3,7 @@ read-out under the mouse, the pinned probes, the inserted objects and the messag
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -18,7 +19,7 @@ from viewer.ui.widgets import FLAGS_FIXED, LEVEL_COLOURS, PANEL_WIDTH, col32, fm
 class SidePanel:
     """Part of :class:`viewer.ui.gui.Gui`: the panel right of the view."""
 
-    def _side_panel(self, W: float, H: float) -> None:
+    def side_panel(self, W: float, H: float) -> None:
         app = self.app
         top = self.bar_height()
         pw = PANEL_WIDTH * self.scale
@@ -39,7 +40,7 @@ class SidePanel:
             imgui.set_next_item_open(n > 1)  # opened when a second one arrives
             self._images_counted = n
         if imgui.collapsing_header(f"Images ({n})###images"):
-            self._images_section()
+            self.images_section()
         if imgui.collapsing_header("Layers", imgui.TreeNodeFlags_.default_open):
             self._layers()
         if imgui.collapsing_header("Display", imgui.TreeNodeFlags_.default_open):
@@ -103,7 +104,7 @@ class SidePanel:
             self._channel_combo()
             if app.hdr.tonemap == "false":
                 lo, hi = app.hdr.false_range
-                self._colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV")
+                self.colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV")
         elif spec.kind == "colour":
             self._channel_combo()
         elif spec.kind == "scalar":
@@ -119,7 +120,7 @@ class SidePanel:
             imgui.same_line()
             if imgui.small_button("auto"):
                 app.set_range(None)
-            self._colour_bar(sd.colormap, fmt_number(lo) + spec.unit, fmt_number(hi) + spec.unit)
+            self.colour_bar(sd.colormap, fmt_number(lo) + spec.unit, fmt_number(hi) + spec.unit)
         else:
             imgui.push_text_wrap_pos(0)
             note = "normal n shown as 0.5 n + 0.5 (x red, y green, z blue)" if spec.kind == "normal" \
@@ -157,10 +158,8 @@ class SidePanel:
         if ch:
             app.set_channel(CHANNELS[i])
 
-    def _colour_bar(self, name: str, lo: str, hi: str) -> None:
-        if name not in self._lut_cache:
-            self._lut_cache[name] = colormap_lut(name, 64)
-        lut = self._lut_cache[name]
+    def colour_bar(self, name: str, lo: str, hi: str) -> None:
+        lut = _bar_lut(name)
         dl = imgui.get_window_draw_list()
         p = imgui.get_cursor_screen_pos()
         w = imgui.get_content_region_avail().x
@@ -307,3 +306,9 @@ class SidePanel:
             imgui.pop_id()
         if remove is not None:
             app.unpin(remove)
+
+
+@functools.cache
+def _bar_lut(name: str) -> np.ndarray:
+    """The colour bar's 64 colours of colour map ``name`` (computed once)."""
+    return colormap_lut(name, 64)

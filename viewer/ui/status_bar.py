@@ -10,7 +10,7 @@ from viewer.ui.widgets import ERROR_BG, FLAGS_FIXED, LEVEL_COLOURS, fmt_value, i
 class StatusBar:
     """Part of :class:`viewer.ui.gui.Gui`: the bar under the view and the error banner over it."""
 
-    def _status_bar(self, W: float, H: float) -> None:
+    def status_bar(self, W: float, H: float) -> None:
         app = self.app
         bh = self.bar_height()
         imgui.set_next_window_pos(imgui.ImVec2(0, H - bh))
@@ -29,7 +29,7 @@ class StatusBar:
         imgui.end()
         imgui.pop_style_var()
 
-    def _error_banner(self, fw: int, fh: int) -> None:
+    def error_banner(self, fw: int, fh: int) -> None:
         app = self.app
         if not app.error:
             return

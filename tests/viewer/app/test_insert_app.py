@@ -174,7 +174,7 @@ def test_dragging_draws_receivers_coarse_under_sharp_objects_over_the_sharp_laye
         panel.hook.dragging = True
         draft = view_pixels(app)
         rect = panel.hook.last_rect
-        keep = panel.insertion._fbos["draft"][1]  # the draft path ran, at a quarter of the resolution
+        keep = panel.insertion._draft[1]  # the draft path ran, at a quarter of the resolution
         assert keep.size == tuple(-(-n // 4) for n in rect[2:])
     finally:
         panel.hook.dragging = False

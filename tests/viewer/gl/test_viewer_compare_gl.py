@@ -84,7 +84,8 @@ def test_reference_of_another_size_lines_up_over_the_panorama(renderer):
 
 
 def test_metrics_use_their_colour_maps(renderer):
-    """The default maps, as uint8 colours: the numbers of the LUT look-up (tests/viewer/test_viewer_gl.py)."""
+    """The default maps, as uint8 colours: the numbers of the LUT look-up
+    (tests/viewer/gl/test_viewer_gl.py)."""
     from viewer.compare import COLORMAP, compare_values
     from viewer.renderer import Compare, Display, colormap_lut
 

@@ -96,11 +96,11 @@ def test_the_view_is_kept_across_images_of_one_size_and_closing_frees_them(app):
     assert app.view.zoom == zoom
     assert app.add_image(a) is app.images[0] and len(app.images) == 2  # already open: shown, not added
     closed = app.images[1]
-    tex = list(closed.state["_textures"].values())
+    tex = list(closed.state["layer_textures"].values())
     assert tex and all(t.glo > 0 for t in tex)
     app.close_image(1)
     assert len(app.images) == 1 and app.current == 0 and app.name == "pano1.0"
-    assert closed.state["_textures"] == {} and all(released(t) for t in tex)
+    assert closed.state["layer_textures"] == {} and all(released(t) for t in tex)
 
 
 def test_a_file_that_fails_to_open_is_dropped_and_the_shown_image_stays(app, tmp_path):
