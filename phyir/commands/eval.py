@@ -44,8 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", metavar="FILE", type=options.path, help="write the results as JSON")
     parser.add_argument("--markdown", metavar="FILE", type=options.path,
                         help="write the Markdown tables (also printed)")
-    parser.add_argument("--real", metavar="DIR",
-                        help="real panoramas without ground truth (.hdr/.exr/.png/.jpg): geometry checks, "
+    parser.add_argument("--real", metavar="PATH", nargs="+",
+                        help="real panoramas without ground truth (.hdr/.exr/.png/.jpg files or folders of "
+                             "them): geometry checks, "
                              "invariances and lighting at a point (phyir.evaluation.real)")
     parser.add_argument("--scans", metavar="DIR",
                         help="scanned rooms with ground-truth depth (rgb.* + depth.npy/.exr/16-bit .png "

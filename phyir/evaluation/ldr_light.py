@@ -22,7 +22,6 @@ import math
 import os
 import statistics
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -116,8 +115,7 @@ def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None
     metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere."""
     from phyir.evaluation.real import panorama_files
 
-    files = [f for p in paths for f in (panorama_files(p) if Path(p).is_dir() else [Path(p)])]
-    files = [f for f in files if f.suffix.lower() in (".hdr", ".exr")]
+    files = [f for f in panorama_files(paths) if f.suffix.lower() in (".hdr", ".exr")]
     out: dict[str, dict[str, float]] = {}
     for f in files:
         for name, row in evaluate_panorama(f, clipnet).items():

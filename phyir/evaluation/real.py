@@ -223,12 +223,16 @@ def _prefix(p: str, d: dict[str, float]) -> dict[str, float]:
 # a panorama, a folder
 
 
-def panorama_files(folder: str | os.PathLike) -> list[Path]:
-    """The panoramas of ``folder`` (:data:`EXTENSIONS`), sorted by name; hidden files (our writes'
-    temporaries among them) are not panoramas."""
+def panorama_files(paths: str | os.PathLike | list[str | os.PathLike]) -> list[Path]:
+    """The panoramas named: files as given, folders expanded to their panoramas (:data:`EXTENSIONS`,
+    sorted by name; hidden files, our writes' temporaries among them, are not panoramas)."""
     from phyir.io import folder_files
 
-    return [Path(p) for p in folder_files(folder, tuple(EXTENSIONS))]
+    items = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    out: list[Path] = []
+    for p in items:
+        out += [Path(f) for f in folder_files(p, tuple(EXTENSIONS))] if Path(p).is_dir() else [Path(p)]
+    return out
 
 
 def evaluate_panorama(path: str | os.PathLike, *, methods: dict[str, RL.LightMethod] | None = None,
@@ -256,9 +260,11 @@ def evaluate_panorama(path: str | os.PathLike, *, methods: dict[str, RL.LightMet
     return row, light, sheet_tiles(image, ref, spheres)
 
 
-def evaluate_real(folder: str | os.PathLike, *, log: Callable[[str], None] | None = None,
+def evaluate_real(folder: str | os.PathLike | list[str | os.PathLike], *,
+                  log: Callable[[str], None] | None = None,
                   methods: dict[str, RL.LightMethod] | None = None, **options) -> tuple[dict, list]:
-    """:func:`evaluate_panorama` on every panorama of ``folder``.  Returns the results
+    """:func:`evaluate_panorama` on every panorama of ``folder`` (a folder, a file, or a list of
+    them: :func:`panorama_files`).  Returns the results
     ``{"geometry": {name|"median": row}, "lighting": {"<name>/<hdr|ldr>"|"median/<hdr|ldr>": {key: v}}}``
     (lighting keys ``<method>.<material>.<metric>`` and ``<method>.peak_deg``) and the contact-sheet
     rows ``[(name, tiles)]``."""
@@ -266,7 +272,8 @@ def evaluate_real(folder: str | os.PathLike, *, log: Callable[[str], None] | Non
 
     files = panorama_files(folder)
     if not files:
-        raise InputError(folder, f"no panoramas ({', '.join(EXTENSIONS)})")
+        where = folder if isinstance(folder, (str, os.PathLike)) else ", ".join(map(str, folder))
+        raise InputError(where, f"no panoramas ({', '.join(EXTENSIONS)})")
     geometry: dict[str, dict] = {}
     lighting: dict[str, dict[str, float]] = {}
     sheet = []

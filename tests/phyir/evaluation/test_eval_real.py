@@ -249,3 +249,19 @@ def test_eval_real_command(tmp_path, capsys):
 
     assert Image.open(out / "r.png").size[0] > 4 * R.TILE[1]
     assert (out / "r.md").read_text().startswith("**Geometry")
+
+
+def test_panorama_files_takes_files_and_folders(tmp_path):
+    from phyir import io
+
+    for name in ("b.hdr", "a.exr", ".a.exr.123-abcd.phyir.tmp"):
+        (tmp_path / "d").mkdir(exist_ok=True)
+        if name.endswith(".tmp"):
+            (tmp_path / "d" / name).write_bytes(b"")
+        else:
+            io.save_panorama(torch.full((3, 8, 16), 0.5), tmp_path / "d" / name)
+    single = tmp_path / "c.hdr"
+    io.save_panorama(torch.full((3, 8, 16), 0.5), single)
+    got = R.panorama_files([single, tmp_path / "d"])
+    assert [p.name for p in got] == ["c.hdr", "a.exr", "b.hdr"]  # as given; a folder sorted, no temporaries
+    assert R.panorama_files(tmp_path / "d") == got[1:]
