@@ -53,19 +53,9 @@ def row(scene, render_spp: int) -> list[np.ndarray]:
     return tiles
 
 
-def label(text: str, width: int) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
-    im = Image.new("RGB", (width, 18), (255, 255, 255))
-    ImageDraw.Draw(im).text((4, 3), text, fill=(0, 0, 0))
-    return np.asarray(im)
-
-
 def main() -> None:
-    from PIL import Image
-
     from phyir.inference import predict
-    from phyir.io import atomic_write
+    from phyir.sheets import LIGHT, save_sheet
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--out", type=Path, default=Path("docs/contact_sheet.png"))
@@ -76,20 +66,14 @@ def main() -> None:
     files = sorted(a.panos.glob("*.hdr"))
     if not files:
         raise SystemExit(f"no .hdr panoramas in {a.panos}")
-    rows = [np.concatenate([label(c, TILE[1]) for c in COLUMNS], 1)]
+    rows = []
     for f in files:
         t0 = time.perf_counter()
-        scene = predict(f, weights=a.weights)
-        tiles = row(scene, a.spp)
-        rows.append(np.concatenate([label(f.name, TILE[1] * len(COLUMNS))], 1))
-        rows.append(np.concatenate(tiles, 1))
+        rows.append((f.name, row(predict(f, weights=a.weights), a.spp)))
         print(f"{f.name}: {time.perf_counter() - t0:.1f} s")
-    sheet = Image.fromarray(np.concatenate(rows, 0))
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(a.out) as tmp:
-        sheet.save(tmp, format="PNG")
+    sheet = save_sheet(a.out, rows, COLUMNS, style=LIGHT)
     print(f"wrote {a.out} ({sheet.width}x{sheet.height})")
-
 
 if __name__ == "__main__":
     main()

@@ -27,7 +27,7 @@ LAYERS = {
     "phyir.errors": 0, "phyir.scene": 0, "phyir.pano": 0, "phyir.color": 0, "phyir.filters": 0,
     "phyir.transforms": 0, "phyir.geometry": 0,
     "phyir.estimators": 0,
-    "phyir.io": 1, "phyir.shading": 1,
+    "phyir.io": 1, "phyir.shading": 1, "phyir.sheets": 1,
     "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,
     "phyir.learn": 3, "phyir.geometry_networks": 3,
     "phyir.inference": 4,

@@ -48,26 +48,9 @@ def depth_tiles(image: Tensor, truth: Tensor, ours: Tensor, error: Tensor) -> li
 def save_depth_sheet(rooms: list[tuple[str, dict[str, Tensor]]], path: str | os.PathLike) -> None:
     """One row per room (``rooms``: name and :func:`phyir.evaluation.real_depth.evaluate_scan`'s
     tensors), written atomically as PNG."""
-    from PIL import Image, ImageDraw
+    from phyir.sheets import save_sheet
 
-    from phyir.io import atomic_write
-
-    pad, line = 4, 14
-    h, w = TILE
     rows = [(name, depth_tiles(t["image"], t["truth"], t["ours"], t["error"])) for name, t in rooms]
-    cols = len(rows[0][1])
-    size = (pad + cols * (w + pad), line + len(rows) * (line + h + pad) + line)
-    sheet = Image.new("RGB", size, (24, 24, 24))
-    draw = ImageDraw.Draw(sheet)
-    for c, (label, _) in enumerate(rows[0][1]):
-        draw.text((pad + c * (w + pad), 1), label, fill=(200, 200, 200))
-    for r, (name, tiles) in enumerate(rows):
-        y = line + r * (line + h + pad)
-        draw.text((pad, y + 1), name, fill=(240, 240, 160))
-        for c, (_, tile) in enumerate(tiles):
-            sheet.paste(Image.fromarray(tile), (pad + c * (w + pad), y + line))
-    draw.text((pad, size[1] - line + 1), "depth: log scale, near red to far blue; magenta: no ground truth",
-              fill=(200, 200, 200))
-    with atomic_write(path) as tmp:
-        sheet.save(tmp, format="PNG")
-
+    save_sheet(path, [(name, [tile for _, tile in tiles]) for name, tiles in rows],
+               [label for label, _ in rows[0][1]],
+               "depth: log scale, near red to far blue; magenta: no ground truth")

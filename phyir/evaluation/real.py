@@ -385,34 +385,16 @@ def sheet_tiles(image: Tensor, scene: PanoScene, spheres: dict[str, Tensor]) -> 
     return tiles
 
 
+SHEET_COLUMNS = ("input", "depth", "normals", "albedo", "spheres")
+
+
 def save_contact_sheet(rows: list[tuple[str, dict[str, np.ndarray]]], path: str | os.PathLike) -> None:
     """One row per room: input, depth, normals, base colour and the spheres (truth vs ours), a legend
     under them."""
-    from PIL import Image, ImageDraw
+    from phyir.sheets import SheetStyle, save_sheet
 
-    from phyir.io import atomic_write
-
-    pad, line = 4, 14
-    names = ["input", "depth", "normals", "albedo", "spheres"]
-    widths = [rows[0][1][k].shape[1] for k in names]
-    height = max(rows[0][1][k].shape[0] for k in names)
-    step = line + height + pad
-    size = (sum(widths) + pad * (len(names) + 1), line + len(rows) * step + 2 * line)
-    sheet = Image.new("RGB", size, (24, 24, 24))
-    draw = ImageDraw.Draw(sheet)
-    x = pad
-    for k, w in zip(names, widths):
-        draw.text((x, 1), k, fill=(200, 200, 200))
-        x += w + pad
-    for r, (name, tiles) in enumerate(rows):
-        y = line + r * step
-        draw.text((pad, y + 1), name, fill=(240, 240, 160))
-        x = pad
-        for k, w in zip(names, widths):
-            sheet.paste(Image.fromarray(tiles[k]), (x, y + line))
-            x += w + pad
     who = ", ".join(str(w) for w in rows[0][1]["sphere_rows"])
-    draw.text((pad, size[1] - 2 * line + 2), f"spheres at {RL.SPHERE_CENTRE} m: rows {who}; columns "
-              f"{', '.join(RL.MATERIALS)}; the input's display exposure", fill=(200, 200, 200))
-    with atomic_write(path) as tmp:
-        sheet.save(tmp, format="PNG")
+    legend = (f"spheres at {RL.SPHERE_CENTRE} m: rows {who}; columns {', '.join(RL.MATERIALS)}; the "
+              "input's display exposure")
+    save_sheet(path, [(name, [tiles[k] for k in SHEET_COLUMNS]) for name, tiles in rows], SHEET_COLUMNS,
+               legend, SheetStyle(legend_height=28, legend_offset=(0, 2)))

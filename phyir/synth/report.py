@@ -23,9 +23,9 @@ def _gray(x: torch.Tensor, lo: float, hi: float) -> np.ndarray:
     return (np.repeat(y[..., None], 3, 2) * 255).astype(np.uint8)
 
 
-def scene_row(scene, height: int = 64) -> np.ndarray:
-    """One contact-sheet row: image, depth, normal, base colour, roughness, metalness, 3 probes."""
-    H, W = scene.size
+def scene_tiles(scene, height: int = 64) -> list[np.ndarray]:
+    """One contact-sheet row's tiles: image, depth, normal, base colour, roughness, metalness and three
+    probes (half height, black below)."""
     size = (height, 2 * height)
     def r(t):
         return resize_area(t, *size)
@@ -38,26 +38,18 @@ def scene_row(scene, height: int = 64) -> np.ndarray:
     if scene.probes is not None:
         Hp, Wp = scene.probe_grid
         for b in (Wp // 8, Wp // 2, 5 * Wp // 8):
-            tiles.append(to_srgb8(resize_area(scene.probes[Hp // 2 + Hp // 8, b], height // 2, height), k))
-    row = []
-    for t in tiles:
-        if t.shape[0] < height:  # probes: half height, pad below
-            t = np.concatenate([t, np.zeros((height - t.shape[0], t.shape[1], 3), np.uint8)], 0)
-        row += [t, np.full((height, 2, 3), 255, np.uint8)]
-    return np.concatenate(row, 1)
+            t = to_srgb8(resize_area(scene.probes[Hp // 2 + Hp // 8, b], height // 2, height), k)
+            tiles.append(np.concatenate([t, np.zeros((height - t.shape[0], t.shape[1], 3), np.uint8)], 0))
+    return tiles
 
 
 def contact_sheet(paths: list[Path], out: Path, height: int = 64) -> Path:
-    from PIL import Image
-
+    """One row of :func:`scene_tiles` per scene, no labels, written atomically as PNG."""
     from phyir.io import load_scene
+    from phyir.sheets import BARE, save_sheet
 
-    rows = [scene_row(load_scene(p), height) for p in paths]
-    width = max(r.shape[1] for r in rows)
-    rows = [np.concatenate([r, np.full((r.shape[0], width - r.shape[1], 3), 255, np.uint8)], 1) for r in rows]
-    sheet = np.concatenate([np.concatenate([r, np.full((2, width, 3), 255, np.uint8)], 0) for r in rows], 0)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(sheet).save(out)
+    save_sheet(out, [("", scene_tiles(load_scene(p), height)) for p in paths], style=BARE)
     return out
 
 
