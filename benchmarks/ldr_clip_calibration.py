@@ -22,7 +22,7 @@ import torch
 
 from phyir import io, pano
 from phyir.color import luminance
-from phyir.evaluation.real import ldr_copy
+from phyir.learn.camera import ldr_copy
 from phyir.lighting.hdr_recovery import clipped_regions
 
 

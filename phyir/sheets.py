@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 Colour = tuple[int, int, int]
+DEPTH_RAMP = np.array([[0.85, 0.15, 0.1], [0.95, 0.8, 0.2], [0.3, 0.8, 0.4], [0.2, 0.45, 0.9],
+                       [0.08, 0.05, 0.35]])  # near (red) to far (dark blue)
 Row = tuple[str, Sequence[np.ndarray]]  # a row's label and its uint8 [h,w,3] tiles, left to right
 
 
@@ -85,3 +87,10 @@ def save_sheet(path: str | os.PathLike, rows: Sequence[Row], columns: Sequence[s
     with atomic_write(path) as tmp:
         sheet.save(tmp, format="PNG")
     return sheet
+
+
+def ramp_colours(t: np.ndarray, stops: np.ndarray = DEPTH_RAMP) -> np.ndarray:
+    """Values ``t`` (0 near .. 1 far, clipped) through the colour ramp ``stops``: uint8 [...,3]."""
+    t = np.clip(t, 0, 1) * (len(stops) - 1)
+    rgb = np.stack([np.interp(t, np.arange(len(stops)), stops[:, c]) for c in range(3)], -1)
+    return (rgb * 255 + 0.5).astype(np.uint8)

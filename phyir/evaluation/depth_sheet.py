@@ -10,18 +10,11 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import linear_to_srgb
+from phyir.sheets import ramp_colours
 
 TILE = (128, 256)
-DEPTH_RAMP = np.array([[0.85, 0.15, 0.1], [0.95, 0.8, 0.2], [0.3, 0.8, 0.4], [0.2, 0.45, 0.9],
-                       [0.08, 0.05, 0.35]])  # near (red) to far (dark blue)
 ERROR_MAX = 0.5  # relative error shown white at this and above; 0 is black
 HOLE = (255, 0, 255)  # no ground truth
-
-
-def _ramp(t: np.ndarray) -> np.ndarray:
-    t = np.clip(t, 0, 1) * (len(DEPTH_RAMP) - 1)
-    rgb = np.stack([np.interp(t, np.arange(len(DEPTH_RAMP)), DEPTH_RAMP[:, c]) for c in range(3)], -1)
-    return (rgb * 255 + 0.5).astype(np.uint8)
 
 
 def _small(x: Tensor) -> np.ndarray:
@@ -34,7 +27,7 @@ def depth_tiles(image: Tensor, truth: Tensor, ours: Tensor, error: Tensor) -> li
     t_log = np.log(np.maximum(_small(truth)[0], 1e-3))
     lo, hi = np.percentile(t_log[valid], (2, 98)) if valid.any() else (0.0, 1.0)
     def colours(d: Tensor) -> np.ndarray:
-        out = _ramp((np.log(np.maximum(_small(d)[0], 1e-3)) - lo) / max(hi - lo, 1e-6))
+        out = ramp_colours((np.log(np.maximum(_small(d)[0], 1e-3)) - lo) / max(hi - lo, 1e-6))
         out[~valid] = HOLE
         return out
     err = (np.clip(_small(error)[0] / ERROR_MAX, 0, 1) * 255 + 0.5).astype(np.uint8)

@@ -1,6 +1,6 @@
 """HDR light from an 8-bit panorama, measured against the HDR panorama it was photographed from.
 
-Each HDR panorama is photographed by the evaluation's camera (:func:`phyir.evaluation.real.ldr_copy`:
+Each HDR panorama is photographed by the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
 auto-exposed to median 0.18, clipped, 8-bit sRGB) and its light recovered by each method of
 :data:`METHODS`: ``naive`` (the LDR as it is), ``gain`` (one calibrated gain per clipped region,
 :mod:`phyir.lighting.hdr_recovery`) and ``clipnet`` (:mod:`phyir.lighting.ldr_to_hdr`, where its
@@ -88,8 +88,8 @@ def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, floa
 def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None = None
                       ) -> dict[str, dict[str, float]]:
     """``{method: metrics}`` of one HDR panorama (module doc); ``clipnet``: weights to measure."""
-    from phyir.evaluation.real import ldr_copy
     from phyir.io import load_panorama
+    from phyir.learn.camera import ldr_copy
 
     hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
     ldr, scale = ldr_copy(hdr)

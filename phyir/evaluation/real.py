@@ -15,9 +15,10 @@ like a function of the scene rather than of the picture:
   Σ|a−b| / max(Σb, :data:`ALBEDO_FLOOR`)) or the angle (normals, degrees) between the prediction of a
   transformed input, brought back, and the prediction of the input: ``yaw`` (rolled by W/4 columns,
   rolled and rotated back with :func:`phyir.transforms.rotate_yaw`), ``exposure_1_16``/``exposure_16``
-  (radiance × 1/16 and × 16), ``ldr`` (the auto-exposed 8-bit copy, :func:`ldr_copy`, predicted with
-  ``hdr=False``) and ``res_half``/``res_double`` (the input area-resized to half and twice its width,
-  512 and 2048 for a 1k panorama; compared at half the input's size);
+  (radiance × 1/16 and × 16), ``ldr`` (the auto-exposed 8-bit copy,
+  :func:`phyir.learn.camera.ldr_copy`, predicted with ``hdr=False``) and ``res_half``/``res_double``
+  (the input area-resized to half and twice its width, 512 and 2048 for a 1k panorama; compared at
+  half the input's size);
 * **confidence** — :func:`scene_confidence`, a score in [0, 1] from plausibility and consistency;
 * **lighting at a point** — :mod:`phyir.evaluation.real_lighting`, for the input and for its LDR copy.
 
@@ -38,9 +39,11 @@ import torch
 from torch import Tensor
 
 from phyir import pano
-from phyir.color import linear_to_srgb, luminance, srgb_to_linear
+from phyir.color import linear_to_srgb
 from phyir.evaluation import real_lighting as RL
+from phyir.learn.camera import ldr_copy
 from phyir.scene import PanoScene
+from phyir.sheets import ramp_colours
 
 NADIR_LAT = -65.0  # degrees: below this the camera sees the floor in any room
 ZENITH_LAT = 70.0  # degrees: above this, the ceiling
@@ -50,7 +53,6 @@ CONSISTENCY_SIZE = (256, 512)  # consistency is measured at most at this size (t
 CONSISTENCY_SCALE_DEG = 45.0  # the consistency angle at which confidence halves (random normals: 90)
 FLAG_BELOW = 0.5
 ALBEDO_FLOOR = 0.03  # Σ RGB below which base colour differences are relative to this (black pixels)
-AUTO_EXPOSURE_KEY = 0.18  # the LDR copy's median luminance (a camera's auto-exposure)
 EXPOSURES = {"exposure_1_16": 1 / 16, "exposure_16": 16.0}
 EXTENSIONS = (".hdr", ".exr", ".png", ".jpg", ".jpeg")
 GEOMETRY_KEYS = ["nadir_up", "zenith_down", "floor_planarity", "camera_height", "consistency_deg",
@@ -166,17 +168,6 @@ def yaw_back(scene: PanoScene, shift: int) -> PanoScene:
     from phyir.transforms import rotate_yaw
 
     return rotate_yaw(scene.replace(probes=None), -shift)
-
-
-def ldr_copy(hdr: Tensor) -> tuple[Tensor, float]:
-    """The auto-exposed 8-bit sRGB copy of a linear image [3,H,W], decoded back to linear, and the
-    exposure factor: ``clip(hdr × s, 0, 1)`` sRGB-encoded, rounded to 8 bits, decoded, with
-    s = :data:`AUTO_EXPOSURE_KEY` / median luminance (what a camera's JPEG of the room holds)."""
-    x = torch.nan_to_num(hdr.float(), nan=0.0, posinf=0.0).clamp_min(0)
-    med = float(luminance(x).median())
-    s = AUTO_EXPOSURE_KEY / med if med > 0 else 1.0
-    q = np.round(linear_to_srgb(x.numpy() * s) * 255) / 255
-    return torch.from_numpy(srgb_to_linear(q)), s
 
 
 def _compare(a: PanoScene, b: PanoScene, layers: tuple[str, ...], size: tuple[int, int] | None = None
@@ -344,17 +335,11 @@ def markdown_real(results: dict) -> str:
 
 TILE = (128, 256)  # panorama tiles of the contact sheet
 SPHERE_TILE = 32  # the sphere images' own size: four rows fit a panorama tile
-DEPTH_RAMP = np.array([[0.85, 0.15, 0.1], [0.95, 0.8, 0.2], [0.3, 0.8, 0.4], [0.2, 0.45, 0.9],
-                       [0.08, 0.05, 0.35]])  # near (red) to far (dark blue)
-
-
 def _depth_colours(depth: Tensor) -> np.ndarray:
-    """Log depth between its 2nd and 98th percentiles through :data:`DEPTH_RAMP`, uint8 [H,W,3]."""
+    """Log depth between its 2nd and 98th percentiles through :data:`phyir.sheets.DEPTH_RAMP`."""
     d = np.log(np.maximum(depth[0].numpy(), 1e-3))
     lo, hi = np.percentile(d, (2, 98))
-    t = np.clip((d - lo) / max(hi - lo, 1e-6), 0, 1) * (len(DEPTH_RAMP) - 1)
-    rgb = np.stack([np.interp(t, np.arange(len(DEPTH_RAMP)), DEPTH_RAMP[:, c]) for c in range(3)], -1)
-    return (rgb * 255 + 0.5).astype(np.uint8)
+    return ramp_colours((d - lo) / max(hi - lo, 1e-6))
 
 
 def sheet_tiles(image: Tensor, scene: PanoScene, spheres: dict[str, Tensor]) -> dict[str, np.ndarray]:

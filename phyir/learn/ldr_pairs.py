@@ -1,10 +1,10 @@
 """LDR/HDR training pairs for ClipNet (:mod:`phyir.nets.clipnet`) from HDR panoramas.
 
 Every HDR panorama is an exact pair once a camera is simulated on it: auto-exposure (the median
-luminance brought to :data:`AUTO_KEY` times 2^U(-a, a)), a white-balance cast, a tone curve, 8-bit
-sRGB codes, often JPEG, then the loader's decode; yaw and mirror at random. The target is what a
-linear sensor would have recorded of the same scene under the same exposure and cast (no clipping):
-the panorama ClipNet must return where the photograph clipped.
+luminance brought to :data:`phyir.learn.camera.AUTO_EXPOSURE_KEY` times 2^U(-a, a)), a white-balance
+cast, a tone curve, 8-bit sRGB codes, often JPEG, then the loader's decode; yaw and mirror at
+random. The target is what a linear sensor would have recorded of the same scene under the same
+exposure and cast (no clipping): the panorama ClipNet must return where the photograph clipped.
 
 Sources: real HDR photographs (``../shared/hdri-indoor``, its fixed validation split never among
 them: :data:`HDRI_VALIDATION`) and path-traced rooms (``phyir synth`` folders, their image layer).
@@ -22,12 +22,18 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.learn.camera import decode_srgb8, encode_srgb8, jpeg_round_trip, tone_curve
+from phyir.learn.camera import (
+    AUTO_EXPOSURE_KEY,
+    decode_srgb8,
+    encode_srgb8,
+    jpeg_round_trip,
+    ldr_copy,
+    tone_curve,
+)
 
 # ../shared/hdri-indoor/README.md: the fixed validation split (never trained on)
 HDRI_VALIDATION = ("colorful_studio_1k", "lythwood_room_1k", "thatch_chapel_1k", "parking_garage_1k",
                    "brown_photostudio_06_1k", "brown_photostudio_07_1k", "peppermint_powerplant_1k")
-AUTO_KEY = 0.18  # a camera's auto-exposure: the median luminance it aims at
 HDR_SUFFIXES = (".hdr", ".exr")
 
 
@@ -81,7 +87,7 @@ def photograph(hdr: Tensor, gen: torch.Generator, camera: Camera = Camera()) -> 
     def u() -> float:
         return float(torch.rand((), generator=gen))
     med = max(float(luminance(hdr).median()), 1e-8)
-    exposure = AUTO_KEY / med * 2.0 ** (camera.exposure_stops * (2 * u() - 1))
+    exposure = AUTO_EXPOSURE_KEY / med * 2.0 ** (camera.exposure_stops * (2 * u() - 1))
     a = camera.white_balance_stops
     gains = torch.tensor([2.0 ** (a * (2 * u() - 1)), 1.0, 2.0 ** (a * (2 * u() - 1))])[:, None, None]
     target = hdr * exposure * gains.to(hdr)
@@ -95,12 +101,10 @@ def photograph(hdr: Tensor, gen: torch.Generator, camera: Camera = Camera()) -> 
 
 
 def fixed_photograph(hdr: Tensor) -> tuple[Tensor, Tensor]:
-    """The evaluation's camera (``phyir eval --real``'s LDR copy): auto-exposed to median
-    :data:`AUTO_KEY`, clipped, 8-bit sRGB, no cast, no JPEG."""
-    exposure = AUTO_KEY / max(float(luminance(hdr).median()), 1e-8)
-    target = hdr * exposure
-    codes = encode_srgb8(target.clamp(0, 1).permute(1, 2, 0))
-    return decode_srgb8(codes).permute(2, 0, 1).to(hdr), target
+    """``(ldr, target)`` through the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
+    auto-exposed, clipped, 8-bit sRGB, no cast, no JPEG)."""
+    ldr, exposure = ldr_copy(hdr)
+    return ldr.to(hdr), hdr * exposure
 
 
 def random_view(x: Tensor, gen: torch.Generator) -> Tensor:

@@ -28,26 +28,31 @@ from phyir.nets.clipnet import ClipNet, apply_gain, clip_weight
 EPS = 1e-4
 
 
+def _clipped(ldr: Tensor, log_gain: Tensor, target: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Per pixel [B,H,W]: the clip weight x solid angle, the recovered and the true luminance."""
+    H, W = ldr.shape[-2:]
+    w = clip_weight(ldr)[:, 0] * pano.solid_angles(H, W, ldr.device, ldr.dtype)
+    return w, luminance(apply_gain(ldr, log_gain)), luminance(target)
+
+
+def _total(x: Tensor) -> Tensor:
+    return x.flatten(1).sum(1)
+
+
 def clipped_losses(ldr: Tensor, log_gain: Tensor, target: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """``(pixel, energy, has)`` per image [B]: the weighted mean |log L_pred - log L_true| and the
     |log| ratio of the clipped energy, and whether the image has clipped pixels at all."""
-    H, W = ldr.shape[-2:]
-    w = clip_weight(ldr) * pano.solid_angles(H, W, ldr.device, ldr.dtype)
-    lp, lt = luminance(apply_gain(ldr, log_gain)), luminance(target)
-    ws = w.flatten(1).sum(1)
-    err = (torch.log(lp + EPS) - torch.log(lt + EPS)).abs()
-    pixel = (w[:, 0] * err).flatten(1).sum(1) / ws.clamp_min(1e-12)
-    ep, et = (w[:, 0] * lp).flatten(1).sum(1), (w[:, 0] * lt).flatten(1).sum(1)
-    energy = (torch.log(ep + 1e-12) - torch.log(et + 1e-12)).abs()
+    w, lp, lt = _clipped(ldr, log_gain, target)
+    ws = _total(w)
+    pixel = _total(w * (torch.log(lp + EPS) - torch.log(lt + EPS)).abs()) / ws.clamp_min(1e-12)
+    energy = (torch.log(_total(w * lp) + 1e-12) - torch.log(_total(w * lt) + 1e-12)).abs()
     return pixel, energy, ws > 1e-6
 
 
 def energy_ratios(ldr: Tensor, log_gain: Tensor, target: Tensor) -> Tensor:
     """Recovered / true energy of each image's clipped pixels [B] (NaN where none clipped)."""
-    H, W = ldr.shape[-2:]
-    w = clip_weight(ldr)[:, 0] * pano.solid_angles(H, W, ldr.device, ldr.dtype)
-    ep = (w * luminance(apply_gain(ldr, log_gain))).flatten(1).sum(1)
-    et = (w * luminance(target)).flatten(1).sum(1)
+    w, lp, lt = _clipped(ldr, log_gain, target)
+    ep, et = _total(w * lp), _total(w * lt)
     return torch.where(et > 0, ep / et.clamp_min(1e-30), torch.full_like(et, math.nan))
 
 

@@ -124,14 +124,16 @@ def test_invariance_errors_are_zero_for_an_invariant_predictor():
 
 def test_ldr_copy_is_auto_exposed_8_bit():
     s = box_scene()
-    ldr, scale = R.ldr_copy(s.image)
+    from phyir.learn.camera import AUTO_EXPOSURE_KEY, ldr_copy
+
+    ldr, scale = ldr_copy(s.image)
     assert 0 <= float(ldr.min()) and float(ldr.max()) <= 1
     from phyir.color import linear_to_srgb, luminance
 
-    assert float(luminance(ldr).median()) == pytest.approx(R.AUTO_EXPOSURE_KEY, rel=0.02)
+    assert float(luminance(ldr).median()) == pytest.approx(AUTO_EXPOSURE_KEY, rel=0.02)
     levels = linear_to_srgb(ldr.numpy()) * 255
     assert abs(levels - levels.round()).max() < 1e-3
-    assert scale == pytest.approx(R.AUTO_EXPOSURE_KEY / float(luminance(s.image).median()))
+    assert scale == pytest.approx(AUTO_EXPOSURE_KEY / float(luminance(s.image).median()))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import torch
 from phyir import pano
 from phyir.color import luminance
 from phyir.learn import ldr_pairs as P
+from phyir.learn.camera import AUTO_EXPOSURE_KEY
 from phyir.learn.train_clipnet import clipped_losses, energy_ratios
 from phyir.lighting import ldr_to_hdr as L
 from phyir.nets.clipnet import CLIP_FULL, CLIP_START, ClipNet, apply_gain, clip_weight
@@ -55,7 +56,7 @@ def test_a_plain_camera_photographs_exactly():
     cam = P.Camera(exposure_stops=0.0, white_balance_stops=0.0, curves=("clip",), clip_gamma=(1.0, 1.0),
                    p_jpeg=0)
     ldr, target = P.photograph(hdr, torch.Generator().manual_seed(3), cam)
-    assert float(luminance(target).median()) == pytest.approx(P.AUTO_KEY, rel=1e-5)  # auto-exposed
+    assert float(luminance(target).median()) == pytest.approx(AUTO_EXPOSURE_KEY, rel=1e-5)  # auto-exposed
     torch.testing.assert_close(ldr, target.clamp(0, 1), rtol=0, atol=0.01)  # 8-bit quantisation only
     fixed, t2 = P.fixed_photograph(hdr)
     torch.testing.assert_close(t2, target)
