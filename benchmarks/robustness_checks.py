@@ -21,7 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-WEIGHTS = Path(__file__).resolve().parents[1] / "phyir" / "assets" / "weights" / "phyir-lite.safetensors"
+from phyir.learn.weights import default_weights_path
+
+WEIGHTS = default_weights_path()
 BIN = Path(sys.executable).parent
 VALUES = ("1e400", "-0", "+inf", "0x10", "1_000", "\u0661\u0662", "", " ")  # class 7's spellings
 SIZES = ("64X32", "64x", "x32", "-64x-32", "64x32x1", "1e400x5", "\u0666\u0664x\u0661\u0662\u0668",

@@ -47,11 +47,12 @@ def guided_filter(guide: Tensor, src: Tensor, eps: Tensor | float, r: int = 2) -
     return mab[:, :C] * guide + mab[:, C:]
 
 
-def guided_upsample(src: Tensor, guide_lo: Tensor, guide_hi: Tensor, r: int, eps: float) -> Tensor:
+def guided_upsample(src: Tensor, guide_lo: Tensor, guide_hi: Tensor, r: int, eps: Tensor | float) -> Tensor:
     """Fast guided-filter upsampling (He & Sun 2015) of ``src [C,h,w]`` to the size of ``guide_hi
     [1,H,W]``: the local linear model src ≈ a·guide + b is fitted at low resolution (windows of
     (2r+1)², wrapping in longitude), its coefficients are upsampled, and applied to the full-resolution
-    guide, so edges of the output follow edges of the image."""
+    guide, so edges of the output follow edges of the image.  ``eps`` is a float or a map [1,h,w] at
+    the low resolution (a large value makes the output the window's mean there, ignoring the image)."""
     H, W = guide_hi.shape[-2:]
     g, p = guide_lo, src
     m = box_mean(torch.cat((g, g * g, p, g * p)), r)

@@ -47,6 +47,7 @@ from phyir.estimators import (  # DEFAULT_LIGHTING and DEFAULT_GEOMETRY are re-e
     lighting_methods,
 )
 from phyir.filters import guided_upsample
+from phyir.geometry.depth_normal import upsample_depth
 from phyir.geometry.plausible import away_share, collapsed, consistent_depth, depth_normals, plausible_gmnet
 from phyir.scene import PanoScene
 
@@ -63,6 +64,11 @@ MIN_NET_INPUT = (16, 32)  # smaller panoramas hold too little for the networks
 MAX_NET_SIZE = (512, 1024)
 GUIDE_RADIUS = 2  # guided upsampling window (net-resolution pixels)
 GUIDE_EPS = 1e-3  # guided upsampling regulariser (guide = log(1 + normalised luminance))
+# depth follows the image's edges only at occlusions (phyir.geometry.depth_normal.upsample_depth: steps
+# further than this in log depth from the normals'); inside surfaces the regulariser is this large, so
+# wall texture doesn't print into the depth (it would tilt the depth's normals off the normal layer's)
+OCCLUSION_TAU = 0.02
+SURFACE_EPS = 1e3
 
 
 class Cancelled(PhyIRError):
@@ -186,10 +192,13 @@ def _guide(image: Tensor) -> Tensor:
     return torch.log1p(luminance(image.clamp_min(0)))[None]
 
 
-def _upsample_layer(name: str, lo: Tensor, guide_lo: Tensor, guide_hi: Tensor) -> Tensor:
+def _upsample_layer(name: str, lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
+                    normal_lo: Tensor | None = None) -> Tensor:
+    """One layer ``lo [C,h,w]`` at the guide's full size; depth uses the normals at its resolution,
+    when there are some, to find its occlusion edges."""
     if name == "depth":
-        return torch.exp(guided_upsample(torch.log(lo.clamp_min(1e-4)), guide_lo, guide_hi, GUIDE_RADIUS,
-                                     GUIDE_EPS))
+        return upsample_depth(lo, guide_lo, guide_hi, normal=normal_lo, r=GUIDE_RADIUS, eps=GUIDE_EPS,
+                              tau=OCCLUSION_TAU, surface_eps=SURFACE_EPS)
     out = guided_upsample(lo, guide_lo, guide_hi, GUIDE_RADIUS, GUIDE_EPS)
     if name == "normal":
         return out / torch.sqrt((out * out).sum(0, keepdim=True)).clamp_min(1e-8)
@@ -399,7 +408,8 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     geo: dict[str, Tensor] = {}
     for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
         lo = net.refined.get(k, net.gm[k])[0]
-        up = _upsample_layer(k, lo, guide_lo, guide_hi) if net.net_size != (H, W) else lo
+        normal_lo = _surface_normals(net) if k == "depth" else None
+        up = _upsample_layer(k, lo, guide_lo, guide_hi, normal_lo) if net.net_size != (H, W) else lo
         if k == "normal":
             up = _plausible_normals(up, net.gm["depth"][0], guide_lo, guide_hi, report)
         if k in plan.missing:
@@ -408,6 +418,15 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
         else:
             geo[k] = up.float().cpu()
     return geo
+
+
+def _surface_normals(net: _NetOut) -> Tensor | None:
+    """The normals [3,h,w] that describe GMNet's depth: its normal layer, or the depth's own where
+    that has collapsed; None without a normal layer."""
+    if "normal" not in net.gm:
+        return None
+    normal = net.gm["normal"][0].float()
+    return depth_normals(net.gm["depth"][0].float()) if collapsed(away_share(normal)) else normal
 
 
 def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,

@@ -12,5 +12,5 @@ minutes=${3:-35}
 export OMP_WAIT_POLICY=PASSIVE
 phyir synth --out "$data" --count 160 --seed 20000 --size 128x256 --probe-grid 16x32 --spp 8 --quiet
 phyir train --config scripts/finetune_depth.toml --data "$data" --out "$run" \
-  --init phyir/assets/weights/phyir-lite.safetensors --max-minutes "$minutes"
+  --init checkpoints/phyir-lite.safetensors --max-minutes "$minutes"
 python -m phyir.learn.weights ship "$run/gm/checkpoint.pt" "$run/depth.safetensors"

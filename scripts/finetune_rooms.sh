@@ -13,5 +13,5 @@ minutes=${3:-45}
 export OMP_WAIT_POLICY=PASSIVE
 phyir synth --out "$data" --count 200 --seed 20000 --size 128x256 --probe-grid 16x32 --spp 8 --quiet
 phyir train --config scripts/finetune_rooms.toml --data "$data" --out "$run" \
-  --init phyir/assets/weights/phyir-lite.safetensors --max-minutes "$minutes"
-# (not shipped: see docs/training.md; to ship: python -m phyir.learn.weights ship "$run/gm/model.safetensors" phyir/assets/weights/phyir-lite.safetensors)
+  --init checkpoints/phyir-lite.safetensors --max-minutes "$minutes"
+# (not shipped: see docs/training.md; to ship: python -m phyir.learn.weights ship "$run/gm/model.safetensors" checkpoints/phyir-lite.safetensors)

@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 PY = [sys.executable, "-m", "phyir.cli"]
-SHIPPED = "phyir/assets/weights/phyir-lite.safetensors"
+SHIPPED = "checkpoints/phyir-lite.safetensors"
 
 
 def log(msg: str) -> None:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The recipe of the shipped lite weights (phyir/assets/weights/phyir-lite.*), as it was run on a 2-core CPU
+# The recipe of the lite weights (checkpoints/phyir-lite.*), as it was run on a 2-core CPU
 # in ~2 hours: 290 synthetic scenes at 128x256, then the paper's four stages, each cut short where
 # the CPU budget ran out (the --max-steps below are the steps each stage reached), then a fine-tune
 # of the metalness head alone (session 3).
@@ -39,4 +39,4 @@ phyir train "${c[@]}" --out "$run-metal" --stage gm --init "$run/gs/model.safete
   --reinit gmnet.decoders.metallic.out
 phyir train "${c[@]}" --out "$run-metal2" --stage gm --init "$run-metal/gm/model.safetensors" \
   --limit-train 231 --limit-val 16 --epochs 8 --lr 1e-4 --batch-size 8
-python -m phyir.learn.weights ship "$run-metal2/gm/model.safetensors" phyir/assets/weights/phyir-lite.safetensors
+python -m phyir.learn.weights ship "$run-metal2/gm/model.safetensors" checkpoints/phyir-lite.safetensors

@@ -1,6 +1,6 @@
 """Benchmark of the model: size x network resolution against error and time (``phyir bench model``).
 
-For each model size (``lite``, ``full``) and network resolution (``net_sizes``), every test scene is
+For each model size (``effnet``, ``lite``, ``full``) and network resolution (``net_sizes``), every test scene is
 predicted by :func:`phyir.predict` (LNet lighting, the networks at that resolution, the outputs
 brought back to the scene's own resolution) and scored against its ground truth:
 
@@ -12,12 +12,13 @@ brought back to the scene's own resolution) and scored against its ground truth:
   position of each cell (as :func:`phyir.evaluation.synthetic.evaluate_model`'s ``model/lnet``), and its mean
   over the three materials ``relight_mean``.
 
-Weights: ``$PHYIR_BENCH_WEIGHTS`` or the shipped lite weights
-(:func:`phyir.learn.weights.default_weights_path`)
-for ``lite``; ``full`` ships none, so it is timed with random weights and its errors are None
-(JSON null, "n/a" in the table) -- as are lite's when no weights exist.
+Weights: ``$PHYIR_BENCH_WEIGHTS`` or the shipped weights
+(:func:`phyir.learn.weights.default_weights_path`, model size ``effnet``) for the size they hold;
+the other sizes are timed with random weights and their errors are None (JSON null, "n/a" in the
+table).
 
-``$PHYIR_BENCH_MODELS`` (comma-separated, default ``lite,full``) picks the model sizes.
+``$PHYIR_BENCH_MODELS`` (comma-separated, default ``effnet,lite,full``; quick: ``lite,full``) picks
+the model sizes.
 
 Test data: ``$PHYIR_BENCH_DATA``, a synthetic dataset folder (its ``test`` split, scenes present on
 disk, at most ``scenes``); by default a few scenes generated once with :mod:`phyir.synth` into the
@@ -39,7 +40,7 @@ import torch
 
 from phyir.scene import PanoScene
 
-FULL = {"sizes": ("lite", "full"), "net_sizes": ((128, 256), (256, 512)), "scenes": 4, "repeats": 1,
+FULL = {"sizes": ("effnet", "lite", "full"), "net_sizes": ((128, 256), (256, 512)), "scenes": 4, "repeats": 1,
         "relight": 16, "relight_spp": 64, "relight_size": 16,
         "data": {"count": 10, "size": (128, 256), "probe_grid": (16, 32), "spp": 8}}
 QUICK = {"sizes": ("lite", "full"), "net_sizes": ((32, 64), (64, 128)), "scenes": 2, "repeats": 1,
@@ -101,19 +102,18 @@ def lnet_relight(pred: PanoScene, gt: PanoScene, cfg: dict) -> dict[str, float]:
 
 
 def _model(size: str, device: str, log: Callable[[str], None]):
-    """(model, weights name or None) -- trained weights for lite when they exist, else random."""
+    """(model, weights name or None) -- the trained weights when they are of this size, else random."""
     from phyir.learn.weights import default_weights_path, load_model
     from phyir.nets.model import PhyIRModel
 
-    if size == "lite":
-        path = Path(os.environ.get("PHYIR_BENCH_WEIGHTS") or default_weights_path())
-        if path.is_file():
-            model = load_model(path, device)
-            if model.config.size == size:
-                return model, path.name
-            log(f"model bench: {path} holds a {model.config.size} model; lite runs with random weights")
-        else:
-            log(f"model bench: no weights at {path}; lite runs with random weights (errors n/a)")
+    path = Path(os.environ.get("PHYIR_BENCH_WEIGHTS") or default_weights_path())
+    if path.is_file():
+        model = load_model(path, device)
+        if model.config.size == size:
+            return model, path.name
+        log(f"model bench: {path} holds a {model.config.size} model; {size} runs with random weights")
+    else:
+        log(f"model bench: no weights at {path}; {size} runs with random weights (errors n/a)")
     torch.manual_seed(0)
     return PhyIRModel(size).to(device).eval(), None
 

@@ -28,7 +28,7 @@ import torch
 PAPER_V100_MS = {"gmnet": 18.0, "lnet": 4.0, "render": 109.0, "gsnet": 8.0}
 PAPER_GPU_MEMORY_GB = 6.0  # "less than 6G GPU memory" for the whole framework, batch 1
 PARTS = ("gmnet", "lnet", "gsnet", "render_prefiltered", "render_importance", "predict")
-FULL = {"size": (256, 512), "models": ("lite", "full"), "repeats": 5, "render_size": (128, 256),
+FULL = {"size": (256, 512), "models": ("effnet", "lite", "full"), "repeats": 5, "render_size": (128, 256),
         "render_spp": 16}
 QUICK = {"size": (64, 128), "models": ("lite",), "repeats": 1, "render_size": (32, 64), "render_spp": 16}
 CALIBRATION_MB = 64  # a tensor of known size whose measured peak checks the memory method

@@ -19,7 +19,7 @@ The rendering layer's own skips (emissive, mirror and rough pixels) are measured
 
 The input is the deterministic HDR panorama of :func:`phyir.bench.modules.bench_image` at twice the
 network's resolution (so predict upsamples, as it does for real photographs); the model is the
-shipped lite weights when present, else a seeded random lite model (recorded in the result).
+shipped weights when present, else a seeded random lite model (recorded in the result).
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
+from phyir.filters import guided_upsample
 
 GRAZING = 0.08  # |n·d| below which a step is too ill-conditioned to use
 CREASE_COS = 0.9  # neighbours whose normals differ by more than ~25° are not one surface
@@ -71,6 +72,38 @@ def _div(fx: Tensor, fy: Tensor) -> Tensor:
     """Adjoint of :func:`forward_differences` (fy's last row must be 0)."""
     up = torch.cat((torch.zeros_like(fy[..., :1, :]), fy[..., :-1, :]), dim=-2)
     return torch.roll(fx, 1, dims=-1) - fx + up - fy
+
+
+def occlusion_edges(log_depth: Tensor, normal: Tensor, tau: float) -> Tensor:
+    """Where a log depth ``[..., 1, H, W]`` steps away from the surface its ``normal`` ``[..., 3, H, W]``
+    describe, in [0, 1] per pixel: 1 - the :func:`agreement` falloff of either step touching the pixel,
+    widened by one pixel.  ~0 inside surfaces and across creases the depth follows, ~1 at occlusion
+    edges, where the depth may jump with the image."""
+    steps = log_depth_steps(normal.to(log_depth.dtype))
+    zx, zy = forward_differences(log_depth)
+    ox = 1 - 1 / (1 + ((zx - steps.gx) / tau) ** 4)
+    oy = 1 - 1 / (1 + ((zy - steps.gy) / tau) ** 4)
+    oy[..., -1, :] = 0  # the last row has no step
+    prev_row = torch.cat((torch.zeros_like(oy[..., :1, :]), oy[..., :-1, :]), dim=-2)
+    edge = torch.maximum(torch.maximum(ox, torch.roll(ox, 1, dims=-1)), torch.maximum(oy, prev_row))
+    lead = edge.shape[:-2]
+    wide = F.max_pool2d(F.pad(edge.reshape(-1, 1, *edge.shape[-2:]), (1, 1, 0, 0), mode="circular"), 3, 1,
+                        padding=(1, 0))
+    return wide.reshape(*lead, *edge.shape[-2:])
+
+
+def upsample_depth(depth: Tensor, guide_lo: Tensor, guide_hi: Tensor, *, normal: Tensor | None, r: int,
+                   eps: float, tau: float, surface_eps: float) -> Tensor:
+    """Radial ``depth [1,h,w]`` at the size of ``guide_hi [1,H,W]`` by guided upsampling of its log
+    (:func:`phyir.filters.guided_upsample`, ``guide_lo`` the guide at the depth's size).  With the
+    ``normal [3,h,w]`` that describe the depth, it follows the image's edges only at
+    :func:`occlusion_edges`: inside surfaces the regulariser is ``eps + surface_eps``, so there the
+    depth is the window's smooth mean and texture does not print into it."""
+    z = torch.log(depth.clamp_min(1e-4))
+    reg: Tensor | float = eps
+    if normal is not None:
+        reg = eps + (1 - occlusion_edges(z, normal.to(z.dtype), tau)) * surface_eps
+    return torch.exp(guided_upsample(z, guide_lo, guide_hi, r, reg))
 
 
 def agreement(log_depth: Tensor, steps: Steps, tau: float) -> tuple[Tensor, Tensor]:

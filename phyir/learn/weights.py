@@ -25,8 +25,9 @@ WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "assets" / "weights"
 
 
 def default_weights_path() -> Path:
-    """The shipped lite model: ``phyir/assets/weights/phyir-lite.safetensors``."""
-    return WEIGHTS_DIR / "phyir-lite.safetensors"
+    """The shipped model: ``phyir/assets/weights/phyir-effnet.safetensors`` (GMNet on the pretrained
+    EfficientNet-Lite0 encoder, the lite LNet and GSNet)."""
+    return WEIGHTS_DIR / "phyir-effnet.safetensors"
 
 
 def sidecar_path(path: str | os.PathLike) -> Path:
@@ -205,7 +206,7 @@ def load_into(model, path: str | os.PathLike, _read: tuple | None = None) -> Non
 
 def load_model(path: str | os.PathLike | None = None, device: str | torch.device = "cpu"):
     """A :class:`PhyIRModel` built from the architecture stored in ``path`` (default: the shipped
-    lite weights) with its weights loaded, in eval mode.  The metadata and the tensors are checked
+    weights) with its weights loaded, in eval mode.  The metadata and the tensors are checked
     (:func:`model_config`, :func:`check_tensors` against a ``meta``-device model) before the model
     is built."""
     from phyir.nets.model import PhyIRModel
@@ -258,16 +259,28 @@ def ship(src: str | os.PathLike, dst: str | os.PathLike, extra: dict | None = No
     return save_weights(model, dst, info, half=True)
 
 
+# the architecture fields that belong to each sub-network (how it is run, not only its tensors: LNet
+# trained on a 16x32 probe grid at 128x256 keeps its probe_block)
+NETWORK_FIELDS = {"lnet": ("light_width", "light_head_kernel", "light_scale", "probe_size", "probe_block"),
+                  "gsnet": ("gs_width", "gs_radius", "gs_targets")}
+
+
 def with_networks_of(model, other: str | os.PathLike, names: tuple[str, ...] = ("lnet", "gsnet")):
     """``model`` with its sub-networks ``names`` replaced by those of the weights file ``other`` (a
-    geometry-only run's model given the shipped LNet and GSNet, which its stage left untrained); the
-    two architectures must agree on those sub-networks."""
+    geometry-only run's model given the shipped LNet and GSNet, which its stage left untrained), and
+    with ``other``'s architecture fields for them (:data:`NETWORK_FIELDS`); the two architectures
+    must agree on those sub-networks' tensors."""
+    import dataclasses
+
     tensors, arch = read_weights(other)
+    theirs = model_config(other, arch)
+    fields = {f: getattr(theirs, f) for n in names for f in NETWORK_FIELDS.get(n, ())}
     want = model.state_dict()
     part = {k: v for k, v in tensors.items() if k.split(".", 1)[0] in names}
     check_tensors(other, part, {k: v for k, v in want.items() if k.split(".", 1)[0] in names},
                   str(arch.get("size", "?")), model.config.size)
     model.load_state_dict({**want, **{k: v.to(want[k].dtype) for k, v in part.items()}})
+    model.config = dataclasses.replace(model.config, **fields)
     return model
 
 

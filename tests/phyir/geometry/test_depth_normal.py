@@ -7,6 +7,7 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from phyir import pano
 from phyir.geometry.depth_normal import log_depth_steps, refine_depth
@@ -112,3 +113,76 @@ def test_the_anchor_weighs_a_pixel_by_its_solid_angle():
         fixed = refine_depth(depth * bump(row), normal, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
         left[name] = float((fixed / depth - 1).abs()[0, row - 2:row + 3, 37:44].max())
     assert left["nadir"] < 0.5 * left["horizon"], left
+
+
+def _room_with_a_crate(H: int, W: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A box room with a crate in front of the camera: depth [1,H,W], normals [3,H,W] and where the
+    crate is [H,W] (phyir.synth.analytic, an independent ray-box test)."""
+    from phyir.synth.analytic import box_hits
+
+    d = pano.directions(H, W, dtype=torch.float64)
+    room_t, room_n, _ = box_hits(d, (-2.5, -1.5, -5.0), (3.5, 1.2, 3.0), inside=True)
+    crate_t, crate_n, hit = box_hits(d, (-0.6, -1.5, -2.4), (0.6, -0.3, -1.6), inside=False)
+    crate = hit & (crate_t < room_t)
+    return torch.where(crate, crate_t, room_t)[None], torch.where(crate, crate_n, room_n), crate
+
+
+def _outline(mask: torch.Tensor) -> torch.Tensor:
+    """Pixels with a 4-neighbour on the other side of ``mask``'s boundary."""
+    rows = torch.zeros_like(mask)
+    rows[1:] |= mask[1:] != mask[:-1]
+    rows[:-1] |= mask[:-1] != mask[1:]
+    return rows | (torch.roll(mask, 1, -1) != mask) | (torch.roll(mask, -1, -1) != mask)
+
+
+def test_occlusion_edges_mark_the_crate_outline_and_nothing_inside_surfaces():
+    from phyir.geometry.depth_normal import occlusion_edges
+
+    depth, normal, crate = _room_with_a_crate(64, 128)
+    edges = occlusion_edges(torch.log(depth), normal, tau=0.02)[0]
+    # the outline: crate pixels beside a wall pixel (the depth jumps there)
+    beside = _outline(crate)
+    # where the depth jumps: the crate's outline but its foot, which stands on the floor
+    z = torch.log(depth[0])
+    jump = torch.zeros_like(crate)
+    jump[:-1] |= (z[1:] - z[:-1]).abs() > 0.1
+    jump[1:] |= (z[1:] - z[:-1]).abs() > 0.1
+    jump |= ((torch.roll(z, 1, -1) - z).abs() > 0.1) | ((torch.roll(z, -1, -1) - z).abs() > 0.1)
+    outline = beside & crate & jump
+    assert int(outline.sum()) > 20
+    assert float(edges[outline].min()) > 0.99
+    # away from the outline and the room's creases (two pixels), nothing is an edge
+    wide = F.max_pool2d(beside[None, None].double(), 5, 1, 2)[0, 0] > 0
+    steps = log_depth_steps(normal)
+    creases = F.max_pool2d(((steps.wx < 1) | (steps.wy < 1))[None].double(), 5, 1, 2)[0, 0] > 0
+    inside = ~wide & ~creases
+    assert float(inside.double().mean()) > 0.6
+    assert float(edges[inside].max()) < 1e-3
+
+
+def test_depth_upsampled_with_its_normals_ignores_texture_and_keeps_occlusions():
+    from phyir.geometry.depth_normal import upsample_depth
+
+    depth_lo, normal_lo, crate_lo = _room_with_a_crate(32, 64)
+    depth_hi, _, crate_hi = _room_with_a_crate(128, 256)
+    # the image: the room's shading plus a high-contrast stripe texture on every surface
+    texture = (torch.arange(256) // 3 % 2).double()[None, None].expand(1, 128, 256)
+    image_hi = torch.log1p(0.5 + 0.4 * texture + 2.0 * crate_hi.double())
+    image_lo = pano.resize_area(image_hi, 32, 64)
+    kw = dict(r=2, eps=1e-3, tau=0.02, surface_eps=1e3)
+    plain = upsample_depth(depth_lo, image_lo, image_hi, normal=None, **kw)
+    aware = upsample_depth(depth_lo, image_lo, image_hi, normal=normal_lo, **kw)
+    near_edges = F.max_pool2d(_outline(crate_hi)[None, None].double(), 17, 1, 8)[0, 0] > 0
+    band = ~near_edges & (pano.pixel_lonlat(128, 256, dtype=torch.float64)[1].abs() < 1.0)
+
+    def ripple(x):  # the texture's 3-pixel period in the depth: second differences along a row
+        z = torch.log(x[0])
+        return float((torch.roll(z, 1, -1) - 2 * z + torch.roll(z, -1, -1)).abs()[band].median())
+    assert ripple(plain) > 10 * ripple(aware)
+    # at the crate's outline the depth still jumps with the image, as sharply as the plain upsampling's
+    smooth = upsample_depth(depth_lo, image_lo, image_hi, normal=None, **(kw | {"eps": 1e3}))
+    outline = F.max_pool2d(_outline(crate_hi)[None, None].double(), 3, 1, 1)[0, 0] > 0
+    def error(x):
+        return float(((x - depth_hi).abs() / depth_hi)[0][outline].mean())
+    assert error(aware) < 1.2 * error(plain)
+    assert error(aware) < 0.7 * error(smooth)

@@ -356,10 +356,16 @@ def test_ship_a_checkpoint_records_its_resolution_and_takes_lnet_gsnet_from_anot
     dst = ship(tmp_path / "run" / "gm" / "checkpoint.pt", tmp_path / "geo.safetensors")
     assert json.loads(dst.with_suffix(".json").read_text())["data"]["resolution"] == f"{H}x{W}"
     torch.manual_seed(5)
-    other = save_weights(_model(), tmp_path / "other.safetensors")
+    other_model = _model()
+    other_model.config = dataclasses.replace(other_model.config, probe_block=4)  # LNet run on a finer grid
+    other = save_weights(other_model, tmp_path / "other.safetensors")
     geo = load_model(dst)
+    assert geo.config.probe_block != 4
     mixed = with_networks_of(load_model(dst), other)
     ref = load_model(other).state_dict()
     for k, v in mixed.state_dict().items():
         want = ref[k] if k.split(".")[0] in ("lnet", "gsnet") else geo.state_dict()[k]
         assert torch.equal(v, want), k
+    # how LNet is run comes with it: its probe grid, not the geometry run's
+    assert mixed.config.probe_block == 4 and mixed.default_grid(32, 64) == (8, 16)
+    assert mixed.config.gm_encoder == geo.config.gm_encoder
