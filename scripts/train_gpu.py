@@ -57,7 +57,7 @@ def synth(args, deadline: float) -> dict:
     for k, dev in enumerate(devices):
         env = dict(os.environ, OMP_NUM_THREADS="1")
         cmd = PY + ["synth", "--out", args.data, "--count", str(args.count), "--seed", str(args.seed),
-                    "--size", "128x256", "--probe-grid", "16x32", "--spp", "8", "--shard", f"{k}/{n}",
+                    "--size", args.size, "--probe-grid", args.probe_grid, "--spp", "8", "--shard", f"{k}/{n}",
                     "--device", dev, "--quiet"]
         err = open(f"/tmp/train_gpu_synth_{k}.log", "w+")  # a file: a pipe left unread fills up
         procs.append((subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err), err))
@@ -97,7 +97,8 @@ def train(args, deadline: float) -> dict:
         name = Path(cfg).stem
         env = dict(os.environ, OMP_NUM_THREADS="2")
         cmd = PY + ["train", "--config", cfg, "--data", args.data, "--out", f"{args.out}/{name}",
-                    "--init", SHIPPED, "--epochs", str(epochs), "--batch-size", str(args.batch_size),
+                    "--init", args.init, "--size", args.size, "--epochs", str(epochs),
+                    "--batch-size", str(args.batch_size),
                     "--max-minutes", f"{seconds / 60:.2f}", "--workers", str(args.workers), "--no-progress",
                     "--limit-val", "16"]
         err = open(Path(args.results) / f"{name}.log", "w")  # a file: pipes of several processes fill up
@@ -111,8 +112,9 @@ def train(args, deadline: float) -> dict:
         src = src if src.is_file() else stage / "checkpoint.pt"
         res = {"returncode": p.returncode, "last": (err.strip().splitlines() or [""])[-1]}
         if src.is_file():
+            rest = ["--rest", args.rest] if args.rest else []
             subprocess.run([sys.executable, "-m", "phyir.learn.weights", "ship", str(src),
-                            str(Path(args.results) / f"{name}.safetensors")], check=True)
+                            str(Path(args.results) / f"{name}.safetensors"), *rest], check=True)
             lines = (stage / "log.jsonl").read_text().splitlines()
             res["steps"] = json.loads(lines[-1])["step"] if lines else 0
         results[name] = res
@@ -128,6 +130,10 @@ def main() -> None:
     ap.add_argument("--data", default="data/gpu128")
     ap.add_argument("--out", default="runs/gpu")
     ap.add_argument("--results", default="runs/gpu/results")
+    ap.add_argument("--init", default=SHIPPED, help="weights every variant starts from")
+    ap.add_argument("--rest", help="weights whose LNet and GSNet complete each result (a geometry run's)")
+    ap.add_argument("--size", default="128x256", help="rooms and training resolution")
+    ap.add_argument("--probe-grid", default="16x32", help="rooms' probe grid ('none': geometry only)")
     ap.add_argument("--count", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=30000)
     ap.add_argument("--cuda-procs", type=int, default=8)
