@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -28,13 +30,24 @@ def luminance(rgb: Tensor, dim: int = -3) -> Tensor:
     return (rgb * w.view(shape)).sum(dim)
 
 
+def clean_radiance(image: Tensor) -> Tensor:
+    """``image`` as float32 with NaN, infinities and negatives zeroed: the input itself when it is
+    clean already (the usual case; a 360 camera's panorama is 200 MB a copy)."""
+    x = image.float()
+    if x.numel():
+        lo, hi = torch.aminmax(x)  # one pass; NaN anywhere makes both NaN, and NaN >= 0 is False
+        if bool(lo >= 0) and bool(hi < math.inf):
+            return x
+    return torch.nan_to_num(x, nan=0.0, posinf=0.0).clamp_min(0)
+
+
 def exposure_scale(image: Tensor) -> Tensor:
     """Per-image factor bringing the median luminance to ``KEY``: [B,3,H,W] -> [B] (or [3,H,W] -> []).
 
     The median ignores lamps and windows (a few bright pixels) and dark corners alike.  An image whose
     median is zero (mostly black) falls back to its mean; an all-black image gets scale 1.
     """
-    L = luminance(torch.nan_to_num(image.float(), nan=0.0, posinf=0.0).clamp(min=0)).flatten(-2)
+    L = luminance(clean_radiance(image)).flatten(-2)
     med = L.median(dim=-1).values
     stat = torch.where(med > 0, med, L.mean(-1))
     scale = torch.where(stat > 0, KEY / stat.clamp(min=1e-30), torch.ones_like(stat))

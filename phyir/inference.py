@@ -350,13 +350,13 @@ def _model_and_device(opts: PredictOptions) -> tuple[Any, torch.device, tuple[in
 
 def _run_networks(scene: PanoScene, is_hdr: bool, plan: _Plan, opts: PredictOptions,
                   clock: _Clock) -> _NetOut:
-    from phyir.color import exposure_scale
+    from phyir.color import clean_radiance, exposure_scale
 
     model, dev, trained = _model_and_device(opts)
     geometry = plan.geometry.load(model, dev) if plan.run_gm else None
     clock.step("model", 0.1)
     Hn, Wn = check_net_size(opts.net_size) if opts.net_size else net_size_for(scene.size[0], trained)
-    img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
+    img = clean_radiance(scene.image)
     x = pano.resize_area(img, Hn, Wn).to(dev)
     s = float(exposure_scale(x)) if is_hdr else 1.0
     xn = (x * s)[None]
@@ -411,7 +411,7 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
         normal_lo = _surface_normals(net) if k == "depth" else None
         up = _upsample_layer(k, lo, guide_lo, guide_hi, normal_lo) if net.net_size != (H, W) else lo
         if k == "normal":
-            up = _plausible_normals(up, net.gm["depth"][0], guide_lo, guide_hi, report)
+            up = _plausible_normals(up, lo, net.gm["depth"][0], guide_lo, guide_hi, report)
         if k in plan.missing:
             setattr(out, k, up.float().cpu())
             report.computed.append(k)
@@ -429,11 +429,12 @@ def _surface_normals(net: _NetOut) -> Tensor | None:
     return depth_normals(net.gm["depth"][0].float()) if collapsed(away_share(normal)) else normal
 
 
-def _plausible_normals(normal: Tensor, depth_lo: Tensor, guide_lo: Tensor, guide_hi: Tensor,
-                       report: PredictReport) -> Tensor:
-    """The network's normals, or, where they have collapsed (:func:`phyir.geometry.plausible.collapsed`),
-    the normals of the predicted depth (at the network's resolution, guided-upsampled)."""
-    report.normals_away = away_share(normal)
+def _plausible_normals(normal: Tensor, normal_lo: Tensor, depth_lo: Tensor, guide_lo: Tensor,
+                       guide_hi: Tensor, report: PredictReport) -> Tensor:
+    """The network's normals (``normal``, upsampled from ``normal_lo``), or, where they have collapsed
+    (:func:`phyir.geometry.plausible.collapsed`, judged at the network's resolution), the normals of
+    the predicted depth (at the network's resolution, guided-upsampled)."""
+    report.normals_away = away_share(normal_lo.float())
     if not collapsed(report.normals_away):
         report.normals_from = "network"
         return normal

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -152,7 +153,8 @@ class PanoScene:
             if tuple(t.shape) != want:
                 raise SceneError(f"mask.{name}: expected shape {list(want)}, got {list(t.shape)}")
         if self.normal is not None:
-            norm = torch.linalg.vector_norm(self.normal.float(), dim=-3)
+            n = self.normal.float()
+            norm = torch.sqrt((n * n).sum(-3))  # (vector_norm over the channel axis is ~20x slower on CPU)
             bad = (norm - 1).abs() > NORMAL_TOL
             if bad.any():
                 raise SceneError(f"normal: {int(bad.sum())} pixels are not unit length "
@@ -169,11 +171,13 @@ class PanoScene:
     def _check_values(name: str, t: Tensor) -> None:
         if not t.is_floating_point():
             raise SceneError(f"{name}: expected a floating-point tensor, got {t.dtype}")
-        finite = torch.isfinite(t)
-        if not finite.all():
-            raise SceneError(f"{name}: {int((~finite).sum())} non-finite values (NaN/Inf)")
+        if not t.numel():
+            return
+        t_min, t_max = (float(v) for v in torch.aminmax(t))  # one pass: NaN or inf show in these
+        if not (math.isfinite(t_min) and math.isfinite(t_max)):
+            raise SceneError(f"{name}: {int((~torch.isfinite(t)).sum())} non-finite values (NaN/Inf)")
         lo, hi = _RANGES.get(name, (None, None))
-        if lo is not None and t.numel() and float(t.min()) < lo:
-            raise SceneError(f"{name}: values below {lo} (min {float(t.min()):.4g})")
-        if hi is not None and t.numel() and float(t.max()) > hi + 1e-6:
-            raise SceneError(f"{name}: values above {hi} (max {float(t.max()):.4g})")
+        if lo is not None and t_min < lo:
+            raise SceneError(f"{name}: values below {lo} (min {t_min:.4g})")
+        if hi is not None and t_max > hi + 1e-6:
+            raise SceneError(f"{name}: values above {hi} (max {t_max:.4g})")

@@ -1,7 +1,7 @@
 """Benchmark of the model: size x network resolution against error and time (``phyir bench model``).
 
-For each model size (``effnet``, ``lite``, ``full``) and network resolution (``net_sizes``), every test scene is
-predicted by :func:`phyir.predict` (LNet lighting, the networks at that resolution, the outputs
+For each model size (``effnet``, ``lite``, ``full``) and network resolution (``net_sizes``), every
+test scene is predicted by :func:`phyir.predict` (LNet lighting, the networks at that resolution, the outputs
 brought back to the scene's own resolution) and scored against its ground truth:
 
 * ``depth_abs_rel`` (:func:`phyir.metrics.depth_metrics`), ``albedo_mse`` and ``albedo_si_mse``

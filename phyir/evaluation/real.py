@@ -76,15 +76,17 @@ def _lat_deg(H: int, W: int) -> Tensor:
 def plausibility(scene: PanoScene) -> dict[str, float]:
     """``nadir_up``, ``zenith_down``, ``floor_planarity`` and ``camera_height`` (see the module doc)."""
     H, W = scene.size
-    lat = _lat_deg(H, W)
-    n = scene.normal.double()
+    lat = _lat_deg(H, 1)[:, 0]  # the caps are whole rows: only those are read (a 360 camera's panorama
+    nadir, zenith = lat < NADIR_LAT, lat > ZENITH_LAT  # in float64 is 400 MB a layer)
     cos_tol = math.cos(math.radians(UP_TOL_DEG))
-    nadir, zenith = lat < NADIR_LAT, lat > ZENITH_LAT
-    y = pano.depth_to_points(scene.depth.double())[1][nadir]
+    n_nadir = scene.normal[1, nadir].double()
+    n_zenith = scene.normal[1, zenith].double()
+    # the floor's points: y = depth * sin(latitude), as phyir.pano.depth_to_points gives it
+    y = (scene.depth[0, nadir].double() * torch.sin(torch.deg2rad(lat[nadir]))[:, None]).flatten()
     height = float((-y).median())
     planarity = float((y + height).abs().median() / height) if height > 0 else math.nan
-    return {"nadir_up": float((n[1][nadir] > cos_tol).double().mean()),
-            "zenith_down": float((n[1][zenith] < -cos_tol).double().mean()),
+    return {"nadir_up": float((n_nadir > cos_tol).double().mean()),
+            "zenith_down": float((n_zenith < -cos_tol).double().mean()),
             "floor_planarity": planarity, "camera_height": height}
 
 
@@ -121,10 +123,11 @@ def consistency_deg(scene: PanoScene) -> float:
     geometry rather than the guided upsampling's pixel-scale texture, and is the same whatever the
     input's resolution (at 1k it reads ~4 degrees more on the same prediction)."""
     H, W = scene.size
-    depth, normal = scene.depth.double(), scene.normal.double()
-    if H > CONSISTENCY_SIZE[0]:
+    depth, normal = scene.depth, scene.normal
+    if H > CONSISTENCY_SIZE[0]:  # resized in float32: in float64 a 360 camera's layer is 400 MB
         H, W = CONSISTENCY_SIZE
-        depth, normal = pano.resize_area(depth, H, W), pano.resize_area(normal, H, W)
+        depth, normal = pano.resize_area(depth.float(), H, W), pano.resize_area(normal.float(), H, W)
+    depth, normal = depth.double(), normal.double()
     band = _lat_deg(H, W).abs() < CONSISTENCY_LAT
     return float(angle_deg(normal, central_normals(depth))[band].mean())
 

@@ -54,6 +54,17 @@ def depth_normals(depth: Tensor) -> Tensor:
     return snap_normals(pano.normals_from_depth(depth), level_deg=LEVEL_DEG_FROM_DEPTH)
 
 
+def facing_camera(normal: Tensor, depth: Tensor) -> Tensor:
+    """Normals ``[...,3,H,W]`` whose pixels that face away from the camera (impossible for a surface it
+    sees: a dome or a skylight the network took for a floor) take the normals of ``depth
+    [...,1,H,W]`` instead; the others are kept."""
+    H, W = normal.shape[-2:]
+    away = (normal * pano.directions(H, W, normal.device, normal.dtype)).sum(-3, keepdim=True) > 0
+    if not bool(away.any()):
+        return normal
+    return torch.where(away, depth_normals(depth).to(normal.dtype), normal)
+
+
 def unflip(out: dict[str, Tensor]) -> dict[str, Tensor]:
     """GMNet's outputs for an upside-down input, back in the upright frame (y -> -y)."""
     out = {k: v.flip(-2) for k, v in out.items()}
@@ -90,7 +101,7 @@ def consistent_depth(depth: Tensor, normal: Tensor) -> tuple[Tensor, Tensor | No
     camera height :func:`phyir.geometry.gravity.floor_under_camera` used (None: not applied)."""
     depth = depth.float()  # float32 is enough (1.8e-6 from float64 on a real room) at half the time
     if not collapsed(away_share(normal[0])):
-        snapped = snap_normals(normal.float())
+        snapped = facing_camera(snap_normals(normal.float()), depth)
         depth = refine_depth(depth, snapped, anchor=REFINE_ANCHOR, tau=REFINE_TAU)
         return floor_under_camera(depth, snapped)
     for _ in range(FALLBACK_PASSES):

@@ -236,8 +236,16 @@ def _first_line(text: str) -> str:
     return ""
 
 
+def _use_all_cores(openexr) -> None:
+    """Let the library compress and decompress on every core (its default is one thread: a 360
+    camera's scene file, 12 float32 channels of 16.6 M pixels, takes twice as long to write)."""
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if openexr.global_thread_count() != n:
+        openexr.set_global_thread_count(n)
+
+
 def write_parts(path: str | os.PathLike, parts: list[tuple[str, dict, dict[str, np.ndarray]]],
-                compression: str = "ZIP") -> None:
+                compression: str = "PIZ") -> None:
     """Write a (multi-part) scanline OpenEXR file.
 
     ``parts``: (name, extra header attributes, channel name -> 2D float16/float32 array).  Every
@@ -247,6 +255,7 @@ def write_parts(path: str | os.PathLike, parts: list[tuple[str, dict, dict[str, 
     """
     import OpenEXR
 
+    _use_all_cores(OpenEXR)
     comp = getattr(OpenEXR, f"{compression}_COMPRESSION")
     H, W = next(iter(parts[0][2].values())).shape
     display = ((0, 0), (W - 1, H - 1))

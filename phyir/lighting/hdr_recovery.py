@@ -50,9 +50,9 @@ def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Te
     rows = min(LABEL_ROWS, H)
     coarse = pano.resize_area(clipped[None].float(), rows, 2 * rows)[0] > 0
     labels, n = components(coarse.numpy())
-    lab = torch.from_numpy(labels)
+    lab = torch.from_numpy(labels).to(torch.int32)  # (int32: a 360 camera's label map is 66 MB, not 133)
     lab = lab[(torch.arange(H) * rows // H)][:, (torch.arange(W) * 2 * rows // W)]
-    return clipped, torch.where(clipped, lab, torch.full_like(lab, -1)), n
+    return clipped, lab.masked_fill_(~clipped, -1), n
 
 
 def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Recovery]:
@@ -63,21 +63,23 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Re
     clipped, labels, n = clipped_regions(x, clip)
     if n == 0:
         return image, Recovery(0, 0.0, 1.0)
-    omega = pano.solid_angles(H, W)
+    # solid angle depends on the row only: [H,1], no full-size map (a 360 camera's is 66 MB)
+    omega = pano.solid_angles(H, 1) / W
     lum = luminance(x)
     med = float(lum.median())
+    inside = labels >= 0
+    k = labels[inside].long()
+    w_in = omega.expand(H, W)[inside].double()
+    # per region (one pass over the pixels, not one per region): solid angle and mean luminance
+    area = torch.bincount(k, w_in, minlength=n)
+    mean = torch.bincount(k, lum[inside].double() * w_in, minlength=n) / area.clamp_min(1e-300)
+    target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
+    boost = (area > 0) & (target > mean)
+    factor = torch.where(boost, target / mean.clamp_min(1e-6), torch.ones_like(mean)).float()
     out = x.clone()
-    boosted = 0
-    for k in range(n):
-        m = labels == k
-        area = float(omega[m].sum())
-        if area <= 0:
-            continue
-        mean = float((lum[m] * omega[m]).sum()) / area
-        target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
-        if target > mean:
-            out[:, m] = x[:, m] * (target / max(mean, 1e-6))
-            boosted += 1
-    before = float((lum * omega).sum())
-    after = float((luminance(out) * omega).sum())
-    return out, Recovery(boosted, float(omega[clipped].sum()), after / max(before, 1e-30))
+    out[:, inside] = x[:, inside] * factor[k]
+    boosted = int(boost.sum())
+    before = float((lum.sum(-1, keepdim=True) * omega).sum())
+    after = float((luminance(out).sum(-1, keepdim=True) * omega).sum())
+    clipped_sr = float(omega.expand(H, W)[clipped].sum())
+    return out, Recovery(boosted, clipped_sr, after / max(before, 1e-30))

@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from phyir import pano
-from phyir.color import exposure_scale
+from phyir.color import clean_radiance, exposure_scale
 from phyir.scene import PROBE_OFFSET, PanoScene, SceneError
 
 # ---------------------------------------------------------------------------------------------
@@ -63,6 +63,9 @@ def _unit0(p: Tensor) -> Tensor:
 
 
 MIN_GRAZING_DEG = 10.0
+# the radiance mips start at most this many rows (0.18 degrees a pixel): a probe texel or a viewer
+# look-up covers degrees, and a 360-camera JPEG's full 2880 rows cost seconds and a gigabyte here
+MAX_MIP_HEIGHT = 1024
 
 
 def jump_threshold(H: int, min_grazing_deg: float = MIN_GRAZING_DEG) -> float:
@@ -120,19 +123,23 @@ class DepthSurface:
         Wm = round(W * Hm / H)
         dm = pano.resize_area(depth, Hm, Wm) if (Hm, Wm) != (H, W) else depth
         dm = torch.nan_to_num(dm, nan=0.0).clamp_min(1e-3)
-        img = torch.nan_to_num(scene.image.float(), nan=0.0, posinf=0.0).clamp_min(0)
+        img = clean_radiance(scene.image)
         scale = float(exposure_scale(img))
-        img = img * scale
-        normal = pano.normals_from_depth(depth) if scene.normal is None else _unit0(scene.normal.float())
+        img = (img * scale).contiguous()  # ours: the bright sources are taken out of it in place
+        # (unit normals where they are used: the bright pixels' and the march grid's, not a full-size copy)
+        normal = pano.normals_from_depth(depth) if scene.normal is None else scene.normal
         sources = None
         if math.isfinite(bright_factor):
-            img, sources = bright_sources(img, depth, normal, bright_factor, max_sources)
+            sources = _take_bright_sources(img, depth, normal, bright_factor, max_sources)
+        if img.shape[-2] > MAX_MIP_HEIGHT:  # finer than any look-up's footprint (bright sources: above)
+            size = (MAX_MIP_HEIGHT, round(W * MAX_MIP_HEIGHT / H))  # a channel at a time: 66 MB, not 200
+            img = torch.cat([pano.resize_area(c[None], *size) for c in img])
         mips = [_pad(img)]
         while img.shape[-2] >= 4 and img.shape[-2] % 2 == 0 and img.shape[-1] % 2 == 0:
             img = F.avg_pool2d(img[None], 2)[0]
             mips.append(_pad(img))
         jump = _cell_jump(dm)
-        nm = _unit0(torch.nan_to_num(pano.resize_area(normal, Hm, Wm)))
+        nm = _unit0(torch.nan_to_num(pano.resize_area(normal.float(), Hm, Wm)))
         return DepthSurface(
             depth_tex=_pad(dm), jump_tex=_pad(jump), normal_tex=_pad(nm), mips=mips,
             r_bound=float(dm.max()) * 1.02 + 1e-3,
@@ -280,41 +287,52 @@ def bright_sources(image: Tensor, depth: Tensor, normal: Tensor, factor: float =
     lamp is a gamble (hit or miss, or a filtered look-up that is wrong at grazing angles); splatting
     each source's power into the texel of its direction, after a visibility ray, is exact in energy.
     """
+    base = image.clone(memory_format=torch.contiguous_format)
+    return base, _take_bright_sources(base, depth, normal, factor, max_sources)
+
+
+def _take_bright_sources(image: Tensor, depth: Tensor, normal: Tensor, factor: float,
+                         max_sources: int) -> BrightSources | None:
+    """:func:`bright_sources`, the excess taken out of ``image`` in place (a large panorama's copy
+    costs hundreds of MB); ``image`` must be contiguous."""
     H, W = image.shape[-2:]
     omega = pano.solid_angles(H, W, image.device)
     lum = image.mean(0)
     thr = factor * float((lum * omega).sum() / omega.sum())
-    frac = (1 - thr / lum.clamp_min(1e-30)).clamp_min(0)
-    if not bool((lum > thr).any()):  # (a black panorama has thr = 0 and no excess anywhere)
-        return image, None
-    excess = image * frac
-    d = depth[0].float().clamp_min(1e-3)
-    pts = pano.depth_to_points(d[None])
-    n = facing_normals(normal, pts)
+    # only the bright pixels (a small share of a large panorama) are turned into points and areas
+    idx = torch.nonzero((lum > thr).reshape(-1)).squeeze(1)
+    if idx.numel() == 0:  # (a black panorama has thr = 0 and no excess anywhere)
+        return None
+    flat = image.view(3, -1)
+    excess = flat[:, idx] * (1 - thr / lum.reshape(-1)[idx])
+    rows, cols = idx // W, idx % W
+    d = depth.reshape(-1)[idx].float().clamp_min(1e-3)
+    pts = d * pano.uv_to_dir(cols.double() + 0.5, rows.double() + 0.5, H, W, dim=0).float()
+    n = facing_normals(_unit0(torch.nan_to_num(normal.reshape(3, -1)[:, idx].float())), pts)
     cos_cam = ((n * pts).sum(0).abs() / d).clamp_min(0.1)
-    area = omega * d * d / cos_cam
-    e = excess * area  # [3,H,W] radiance x area
+    area = omega.reshape(-1)[idx] * d * d / cos_cam
+    e = excess * area  # [3,M] radiance x area
     w = e.mean(0)  # centroid weights
+    flat[:, idx] -= excess
     Hs = min(H, 32)
     while True:
         Ws = max(1, round(W * Hs / H))
-        cell = ((torch.arange(H, device=d.device) * Hs // H)[:, None] * Ws
-                + (torch.arange(W, device=d.device) * Ws // W)[None]).reshape(-1)
-        lit = torch.bincount(cell[w.reshape(-1) > 0], minlength=Hs * Ws) > 0
+        cell = rows * Hs // H * Ws + cols * Ws // W
+        lit = torch.bincount(cell[w > 0], minlength=Hs * Ws) > 0
         if int(lit.sum()) <= max_sources or Hs <= 2:
             break
         Hs //= 2
 
-    def pool(x: Tensor) -> Tensor:  # [C,H,W] -> [C, cells] sums
+    def pool(x: Tensor) -> Tensor:  # [C,M] -> [C, cells] sums
         out = torch.zeros(x.shape[0], Hs * Ws, device=x.device, dtype=x.dtype)
-        return out.index_add_(1, cell, x.reshape(x.shape[0], -1))
+        return out.index_add_(1, cell, x)
 
     keep = torch.nonzero(lit).squeeze(1)
     wsum = pool(w[None])[:, keep]
     pos = pool(pts * w)[:, keep] / wsum
     nrm = _unit0(pool(n * w)[:, keep])
     power = pool(e)[:, keep]
-    return image - excess, BrightSources(pos, nrm, power)
+    return BrightSources(pos, nrm, power)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -193,3 +193,19 @@ def test_predict_puts_the_floor_under_the_camera_on_the_floor_around_it():
     assert report.floor_height is not None and abs(report.floor_height - HI[1]) < 0.01 * HI[1]
     assert out.meta["predict.floor_height"] == f"{report.floor_height:.4g}"
     assert cap_error(raw) > 0.06 and cap_error(out.depth) < 0.01
+
+
+def test_normals_facing_away_from_the_camera_take_the_depths():
+    """A patch of the ceiling predicted as floor ("up" above the camera: a dome read as a floor)
+    faces away from the camera: those pixels take the depth's normals, the rest is untouched."""
+    depth, normal = box_room(H, W, LO, HI)
+    depth, normal = depth.float()[None], normal.float()[None]
+    bad = normal.clone()
+    bad[:, :, 2:6, 10:30] = torch.tensor([0.0, 1.0, 0.0])[:, None, None]  # ceiling rows, "up"
+    fixed = plausible.facing_camera(bad, depth)
+    d = pano.directions(H, W)
+    assert bool(((fixed[0] * d).sum(0) <= 0).all()), "every pixel faces the camera"
+    assert torch.equal(fixed[..., 6:, :], bad[..., 6:, :]) and torch.equal(fixed[..., :2, :], bad[..., :2, :])
+    patch = angle_deg(fixed[0, :, 2:6, 10:30], normal[0, :, 2:6, 10:30])
+    assert float(patch.median()) < 5  # the depth's normals: the ceiling's -y
+    assert torch.equal(plausible.facing_camera(normal, depth), normal)

@@ -90,7 +90,7 @@ def test_scene_file_layout_as_documented(tmp_path):
                                    "albedo.R", "albedo.G", "albedo.B", "roughness.Y", "metallic.Y",
                                    "mask.emission", "mask.window"}
     assert {c.pixels.dtype for c in scene.channels.values()} == {np.dtype(np.float32)}
-    assert scene.header["compression"] == OpenEXR.ZIP_COMPRESSION
+    assert scene.header["compression"] == OpenEXR.PIZ_COMPRESSION
     assert scene.header["phyir.source"] == "unit test" and scene.header["phyir.note"] == "ünïcode"
     assert np.array_equal(scene.channels["normal.Y"].pixels, s.normal[1].numpy())
     assert np.array_equal(scene.channels["mask.window"].pixels, s.masks["window"][0].numpy())

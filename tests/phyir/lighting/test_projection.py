@@ -299,3 +299,31 @@ def test_synthetic_room_diffuse_walls_match_ground_truth():
     # bright lamps; within 3 % with dimmer ones)
     assert float((proj[m] / gt[m]).median()) == pytest.approx(1.0, abs=0.03)
     assert float(proj[m].sum() / gt[m].sum()) == pytest.approx(1.0, abs=0.10)
+
+
+def test_capping_the_radiance_mips_loses_no_accuracy(furnished, monkeypatch):
+    """A large panorama's radiance mips start at MAX_MIP_HEIGHT rows (the bright sources are still
+    taken at full size): here a 128-row room capped at 64 rows, four times a probe's. Interior
+    texels stay as close to the exact texel averages as without the cap, and a small lamp keeps its
+    power."""
+    import phyir.lighting.projection as projection
+
+    full, _ = project_probes(furnished, POINTS, (16, 32))
+    monkeypatch.setattr(projection, "MAX_MIP_HEIGHT", 64)
+    capped, _ = project_probes(furnished, POINTS, (16, 32))
+    def error(probes):
+        errs = []
+        for k in range(len(POINTS)):
+            ref, _, interior = reference_probe(POINTS[k], 16, 32, furniture=True)
+            errs.append(((probes[k] - ref).abs() / ref).amax(0)[interior])
+        return torch.cat(errs)
+    e_full, e_capped = error(full), error(capped)
+    assert float(e_capped.median()) < 1.2 * float(e_full.median()) + 0.002
+    assert float(e_capped.quantile(0.9)) < 1.2 * float(e_full.quantile(0.9)) + 0.005
+    assert DepthSurface.from_scene(furnished).mips[0].shape[-2] == 64
+    lamp_room = room_scene(128, furniture=False, lamp=True, ss=8)
+    x = torch.tensor([[0.0, 0.5, -0.2]])
+    om = pano.solid_angles(16, 32)
+    room = reference_probe(x[0], 16, 32, furniture=False, lamp=False, ss=2)[0]
+    lamp = ((project_probes(lamp_room, x, (16, 32))[0][0] - room)[0] * om).sum()
+    assert abs(float(lamp) / lamp_power(x[0].double()) - 1) < 0.05
