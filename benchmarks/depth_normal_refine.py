@@ -16,8 +16,8 @@ import itertools
 from pathlib import Path
 
 import phyir.inference as inference
-from phyir import metrics as M
 from phyir import pano
+from phyir.evaluation import metrics as M
 from phyir.evaluation.synthetic import model_input, surface_mask
 from phyir.geometry import plausible
 from phyir.geometry.depth_normal import refine_depth

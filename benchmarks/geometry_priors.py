@@ -39,9 +39,9 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from phyir import metrics as M
 from phyir import pano
 from phyir.color import exposure_scale, luminance
+from phyir.evaluation import metrics as M
 from phyir.evaluation.real import plausibility
 from phyir.evaluation.synthetic import surface_mask
 from phyir.geometry.plausible import consistent_depth, plausible_gmnet, unflip

@@ -33,8 +33,8 @@ def main() -> int:
     import torch
 
     from phyir import io, pano
+    from phyir.evaluation.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from phyir.insert.objects import PRESETS
-    from phyir.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from viewer.insertion import InsertionRenderer
 
     probes = {}

@@ -49,8 +49,8 @@ def _reference(args: argparse.Namespace, H: int, W: int):
     """The traced room with and without the sphere (from ``--cache`` when it exists)."""
     import torch
 
+    from phyir.evaluation.metrics import RELIGHT_MATERIALS
     from phyir.insert.reference import trace_reference
-    from phyir.metrics import RELIGHT_MATERIALS
 
     mats = {m: RELIGHT_MATERIALS[m.replace("-", "_")] for m in MATERIALS}
     if args.cache and os.path.exists(args.cache):

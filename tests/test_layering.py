@@ -28,7 +28,7 @@ LAYERS = {
     "phyir.transforms": 0, "phyir.geometry": 0,
     "phyir.estimators": 0,
     "phyir.io": 1, "phyir.shading": 1, "phyir.sheets": 1,
-    "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.metrics": 2,
+    "phyir.lighting": 2, "phyir.nets": 2, "phyir.synth": 2, "phyir.evaluation.metrics": 2,
     "phyir.learn": 3, "phyir.geometry_networks": 3,
     "phyir.inference": 4,
     "phyir.evaluation": 5, "phyir.export": 5, "phyir.insert": 5,
@@ -45,7 +45,12 @@ def module_name(path: Path) -> str:
 
 
 def unit(module: str) -> str:
+    """The layered unit a module belongs to: the longest prefix in LAYERS (``phyir.evaluation.metrics``
+    is a unit of its own, below the rest of ``phyir.evaluation``), else ``phyir.X`` or the top level."""
     parts = module.split(".")
+    for n in range(len(parts), 2, -1):
+        if ".".join(parts[:n]) in LAYERS:
+            return ".".join(parts[:n])
     return ".".join(parts[:2]) if parts[0] == "phyir" else parts[0]
 
 

@@ -1,10 +1,10 @@
 """Benchmark of the viewer's object shading settings: time per frame against error
 (``phyir bench shading``).
 
-The supplement's Table 2 spheres (diffuse, matte silver, mirror silver; :data:`phyir.metrics
+The supplement's Table 2 spheres (diffuse, matte silver, mirror silver; :data:`phyir.evaluation.metrics
 .RELIGHT_MATERIALS`) lit by a probe are shaded by the insertion renderer's GLSL
 (:meth:`viewer.insertion.InsertionRenderer.shade_gbuffer`, ``shaders/ibl.glsl``) under several
-settings and compared with the converged reference: :func:`phyir.metrics.render_spheres`
+settings and compared with the converged reference: :func:`phyir.evaluation.metrics.render_spheres`
 (importance sampling, ``ref_spp`` samples; the mean of two halves with different seeds, whose
 difference gives the reference's own noise).
 
@@ -128,8 +128,8 @@ def _run(out: Path, cfg: dict, device: str, log: Callable[[str], None]) -> dict:
     from phyir.bench.measure import time_calls
     from phyir.bench.report import save_target
     from phyir.bench.synth import pair_noise, rel_l1
+    from phyir.evaluation.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from phyir.insert.objects import PRESETS
-    from phyir.metrics import RELIGHT_MATERIALS, render_spheres, sphere_gbuffer
     from viewer.insertion import InsertionRenderer
 
     S = cfg["size"]

@@ -4,10 +4,10 @@ For each model size (``effnet``, ``lite``, ``full``) and network resolution (``n
 test scene is predicted by :func:`phyir.predict` (LNet lighting, the networks at that resolution, the outputs
 brought back to the scene's own resolution) and scored against its ground truth:
 
-* ``depth_abs_rel`` (:func:`phyir.metrics.depth_metrics`), ``albedo_mse`` and ``albedo_si_mse``
-  (:func:`phyir.metrics.material_metrics`, emitters left out) --
+* ``depth_abs_rel`` (:func:`phyir.evaluation.metrics.depth_metrics`), ``albedo_mse`` and ``albedo_si_mse``
+  (:func:`phyir.evaluation.metrics.material_metrics`, emitters left out) --
   :func:`phyir.evaluation.synthetic.pixel_metrics`;
-* relighting error (supplement D.3, :func:`phyir.metrics.relight_errors`) of the Table 2 spheres at
+* relighting error (supplement D.3, :func:`phyir.evaluation.metrics.relight_errors`) of the Table 2 spheres at
   ``relight`` ground-truth probe cells spread over the grid, LNet's probes read at the predicted
   position of each cell (as :func:`phyir.evaluation.synthetic.evaluate_model`'s ``model/lnet``), and its mean
   over the three materials ``relight_mean``.

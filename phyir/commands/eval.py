@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def markdown(results: dict[str, dict[str, float]]) -> str:
-    from phyir.metrics import markdown_table
+    from phyir.evaluation.metrics import markdown_table
 
     margins = {m: r for m, r in results.items() if m.startswith("margin/")}
     results = {m: r for m, r in results.items() if m not in margins}
@@ -164,8 +164,8 @@ def run(args: argparse.Namespace) -> int:
         if args.points:
             raise PhyIRError("--points runs the model at free points: give it with --data, not with "
                              "prediction files")
+        from phyir.evaluation.metrics import MetricMeter
         from phyir.evaluation.synthetic import evaluate_pair
-        from phyir.metrics import MetricMeter
 
         meter = MetricMeter()
         for f, g in _pairs(args.predictions, Path(args.gt)):

@@ -135,7 +135,7 @@ def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None
 
 
 def markdown_ldr_light(results: dict) -> str:
-    from phyir.metrics import markdown_table
+    from phyir.evaluation.metrics import markdown_table
 
     keys = ["diffuse.rel_l1", "diffuse.ratio", "diffuse.colour_deg", "matte_silver.rel_l1",
             "regions_within_2x", "region_ratio_median", "clipped_log_err"]

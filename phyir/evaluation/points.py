@@ -23,7 +23,7 @@ Methods (probes ``[N,3,h,w]`` at the truth's size), each ``name: callable(preds,
 * ``panorama``: the camera's panorama as distant light.  This is the real protocol's *truth*, so its
   error here is what that protocol cannot see: the parallax between the camera and the point.
 
-Metrics per method: ``probe_log_mse`` and ``relight_*`` (:mod:`phyir.metrics`, as ``phyir eval``'s
+Metrics per method: ``probe_log_mse`` and ``relight_*`` (:mod:`phyir.evaluation.metrics`, as ``phyir eval``'s
 lighting table), and the real protocol's sphere metrics for the diffuse and matte silver spheres
 (``<material>.rel_l1`` / ``si_rel_l1`` / ``ratio`` / ``colour_deg``, the same brute-force integrator),
 averaged over points.
@@ -42,8 +42,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from phyir import metrics as M
 from phyir import pano
+from phyir.evaluation import metrics as M
 from phyir.evaluation import real_lighting as RL
 from phyir.scene import PanoScene
 

@@ -304,7 +304,7 @@ def _median(rows: list[dict]) -> dict[str, float]:
 def markdown_real(results: dict) -> str:
     """The Markdown tables: geometry facts, invariances, then lighting per method (rows: panorama /
     input, then the medians)."""
-    from phyir.metrics import markdown_table as table
+    from phyir.evaluation.metrics import markdown_table as table
 
     def markdown_table(rows: dict, keys: list[str], digits: int) -> str:
         return table(rows, keys, digits=digits).replace("| method |", "| panorama |", 1)

@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from phyir import metrics as M
 from phyir import pano
+from phyir.evaluation import metrics as M
 from phyir.evaluation.scans import Scan, find_scans, read_depth
 from phyir.scene import PanoScene
 
@@ -143,7 +143,7 @@ def evaluate_scans(folder: str | os.PathLike, *, sheet: str | os.PathLike | None
 
 def markdown_scans(results: dict) -> str:
     """One row per room and the median, the constant depth beside ours."""
-    from phyir.metrics import markdown_table
+    from phyir.evaluation.metrics import markdown_table
 
     rows = dict(results["rooms"]) | {"median": results["median"]}
     return markdown_table(rows, SUMMARY_KEYS, digits=3)

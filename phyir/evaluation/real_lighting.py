@@ -2,7 +2,7 @@
 
 A small sphere (:data:`SPHERE_RADIUS`) at :data:`SPHERE_CENTRE`, 0.8 m in front of the camera (the
 camera looks along -z, docs/conventions.md), is shaded with the RELIGHT_MATERIALS presets of
-:mod:`phyir.metrics` (diffuse, matte silver, mirror silver) and seen from the camera:
+:mod:`phyir.evaluation.metrics` (diffuse, matte silver, mirror silver) and seen from the camera:
 
 * **truth**: the HDR panorama itself used as distant incident light.  The panorama *is* the light
   arriving at the camera; using it 0.8 m away ignores that parallax, which is the approximation.
@@ -38,7 +38,7 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.metrics import RELIGHT_MATERIALS, sphere_gbuffer
+from phyir.evaluation.metrics import RELIGHT_MATERIALS, sphere_gbuffer
 from phyir.scene import PanoScene
 from phyir.shading import brdf as B
 

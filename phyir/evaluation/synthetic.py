@@ -1,4 +1,5 @@
-"""Evaluation of predicted scenes against ground truth with the paper's metrics (:mod:`phyir.metrics`).
+"""Evaluation of predicted scenes against ground truth with the paper's metrics
+(:mod:`phyir.evaluation.metrics`).
 
 * :func:`evaluate_pair` — one predicted scene against its ground truth: every metric whose layers
   both scenes have (depth, normals, materials, probes on the same grid, relighting).
@@ -32,8 +33,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from phyir import metrics as M
 from phyir import pano
+from phyir.evaluation import metrics as M
 from phyir.scene import PanoScene
 
 CONSTANT_DEPTH = 3.0
@@ -263,7 +264,7 @@ MARGIN_KEY = "margin/model/lnet-vs-dataset_means"
 
 
 def margins(model: M.MetricMeter, base: M.MetricMeter) -> dict[str, float]:
-    """:func:`phyir.metrics.paired_margin` of every metric both have, flattened to
+    """:func:`phyir.evaluation.metrics.paired_margin` of every metric both have, flattened to
     ``<metric>.<margin|ci_low|ci_high|better|scenes>`` (so the results stay a dict of float dicts)."""
     keys = [k for k in model.result() if k in base.result()]
     out: dict[str, float] = {}

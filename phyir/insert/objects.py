@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from phyir.errors import InputError
-from phyir.metrics import RELIGHT_MATERIALS
+from phyir.evaluation.metrics import RELIGHT_MATERIALS
 
 MAX_FACES = 5_000_000
 MAX_EXTENT = 1000.0  # metres

@@ -474,8 +474,8 @@ def train(cfg: TrainConfig, datasets=None) -> dict:
 
 @torch.no_grad()
 def validate(model: PhyIRModel, stage: Stage, val_set, d: Dist, batch_size: int = 4) -> dict[str, float]:
-    """Mean validation metrics (phyir.metrics) over the val split, sharded over processes."""
-    from phyir import metrics
+    """Mean validation metrics (phyir.evaluation.metrics) over the val split, sharded over processes."""
+    from phyir.evaluation import metrics
 
     was = {n: getattr(model, n).training for n in ("gmnet", "lnet", "gsnet")}
     model.eval()

@@ -112,7 +112,7 @@ def test_model_quick(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_shading_quick(tmp_path, ctx):
-    from phyir.metrics import RELIGHT_MATERIALS
+    from phyir.evaluation.metrics import RELIGHT_MATERIALS
     from viewer import bench_shading
 
     res = bench_shading.run_bench(tmp_path, quick=True, threads=1, log=lambda s: None)

@@ -151,7 +151,7 @@ def test_integrator_constant_environment_gives_albedo_times_radiance():
 
 @pytest.mark.parametrize("material", list(RL.MATERIALS))
 def test_integrator_matches_the_renderer_on_a_random_environment(material):
-    from phyir.metrics import render_spheres
+    from phyir.evaluation.metrics import render_spheres
 
     g = torch.Generator().manual_seed(1)
     env = pano.resize_area(torch.rand(1, 3, 4, 8, generator=g) * 3, 16, 32)

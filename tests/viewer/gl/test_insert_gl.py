@@ -18,8 +18,8 @@ from support.paths import PANOS
 from support.scenes import TABLE_HI, TABLE_LO, box_room, lamp_probe
 
 from phyir import pano
+from phyir.evaluation.metrics import RELIGHT_MATERIALS, sphere_gbuffer
 from phyir.insert import placement
-from phyir.metrics import RELIGHT_MATERIALS, sphere_gbuffer
 from phyir.shading import brdf
 from phyir.shading.render import shade_env
 

@@ -1,4 +1,5 @@
-"""phyir.metrics against values computed by hand (the arithmetic is written out beside each number)."""
+"""phyir.evaluation.metrics against values computed by hand (the arithmetic is written out beside
+each number)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import math
 import pytest
 import torch
 
-from phyir import metrics as M
 from phyir import pano
+from phyir.evaluation import metrics as M
 
 
 def approx(x, rel=1e-6, abs=1e-9):
