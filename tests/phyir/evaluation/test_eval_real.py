@@ -267,3 +267,24 @@ def test_panorama_files_takes_files_and_folders(tmp_path):
     got = R.panorama_files([single, tmp_path / "d"])
     assert [p.name for p in got] == ["c.hdr", "a.exr", "b.hdr"]  # as given; a folder sorted, no temporaries
     assert R.panorama_files(tmp_path / "d") == got[1:]
+
+
+def test_confidence_falls_as_normals_and_depth_disagree():
+    """The confidence ranks rooms, not only flags failures: normals tilted further from their depth's
+    (a wall ripple of growing amplitude: each column's normals turned about the vertical) read a
+    lower confidence at every step, by a clear margin between about 6° and 10° of disagreement (the
+    range good predictions fall in), while the floor stays up."""
+    s = box_scene()
+    lon = pano.pixel_lonlat(*s.size, dtype=torch.float64)[0]
+    scores = []
+    for amplitude in (0.0, 10.0, 20.0, 30.0, 45.0):
+        a = torch.deg2rad(torch.tensor(amplitude, dtype=torch.float64)) * torch.sin(12 * lon)
+        n = s.normal.double().clone()
+        x, z = n[0].clone(), n[2].clone()
+        n[0], n[2] = x * torch.cos(a) - z * torch.sin(a), x * torch.sin(a) + z * torch.cos(a)
+        c = R.scene_confidence(s.replace(normal=n.float()))
+        assert c["nadir_up"] == 1.0
+        scores.append((c["consistency_deg"], c["confidence"]))
+    assert all(b[1] < a[1] for a, b in zip(scores, scores[1:])), scores
+    (c2, s2), (c4, s4) = scores[2], scores[4]
+    assert 4 < c2 < 7 and 9 < c4 < 12 and s2 - s4 > 0.05, scores  # (a quartic at 45°: 0.002)
