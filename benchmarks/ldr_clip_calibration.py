@@ -9,6 +9,7 @@ few very bright lamps that dominate the mean), and the log-linear fit against th
 
     phyir synth --out data/h128 --count 40 --seed 7000 --size 128x256 --probe-grid 16x32 --spp 8
     python -m benchmarks.ldr_clip_calibration data/h128
+    python -m benchmarks.ldr_clip_calibration HDR...   # real panoramas, e.g. hdri-indoor's training split
 """
 
 from __future__ import annotations
@@ -51,11 +52,12 @@ def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", type=Path, help="folder of synthetic scene files (phyir synth)")
+    ap.add_argument("data", type=Path, nargs="+",
+                    help="folder of synthetic scene files (phyir synth), or HDR panorama files")
     a = ap.parse_args(argv)
-    files = sorted(a.data.glob("*.exr"))
+    files = [f for d in a.data for f in (sorted(d.glob("*.exr")) if d.is_dir() else [d])]
     if not files:
-        print(f"{a.data}: no scene files", file=sys.stderr)
+        print(f"{' '.join(map(str, a.data))}: no scene files", file=sys.stderr)
         return 2
     rows = np.array([r for f in files for r in regions(io.load_panorama(f))])
     area, rel = rows[:, 0], rows[:, 1]
