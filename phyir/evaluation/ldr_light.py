@@ -41,15 +41,25 @@ def _naive(ldr: Tensor) -> Tensor:
 def _gain(ldr: Tensor) -> Tensor:
     from phyir.lighting.hdr_recovery import recover_clipped
 
-    return recover_clipped(ldr)[0]
+    return recover_clipped(ldr, model=None)[0]
+
+
+def _regions(ldr: Tensor) -> Tensor:
+    from phyir.lighting.hdr_recovery import recover_clipped
+
+    return recover_clipped(ldr, model="shipped")[0]
 
 
 def methods(clipnet: str | os.PathLike | None = None) -> dict[str, Callable[[Tensor], Tensor]]:
-    """The recoveries measured: naive, gain and, where its weights are present (``clipnet``, default
-    the shipped ones), clipnet."""
+    """The recoveries measured: naive, gain (one calibrated gain per region), regions (the shipped
+    :class:`phyir.lighting.clip_regions.RegionModel`, where present) and, where its weights are
+    present (``clipnet``, default the shipped ones), clipnet."""
+    from phyir.lighting.clip_regions import RegionModel
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
     out = {"naive": _naive, "gain": _gain}
+    if RegionModel.load() is not None:
+        out["regions"] = _regions
     model = load_clipnet(clipnet)
     if model is not None:
         out["clipnet"] = lambda ldr: recover(ldr, model)[0]

@@ -3,18 +3,18 @@
 An 8-bit panorama (a phone, a JPEG) clips lamps and windows at 1.0: the naive environment from it
 holds a fraction of their energy (the real panoramas of ``phyir eval --real``: a diffuse sphere lit by
 the LDR copy is 0.4-0.9x as bright as under the HDR). Each connected clipped region (8-connected,
-wrapping in longitude, found at :data:`LABEL_ROWS` rows) gets the mean luminance a clipped steradian
-has in the synthetic rooms, relative to the panorama's median luminance: ``L / median = GAIN *
-A**AREA_EXPONENT`` (``python -m benchmarks.ldr_clip_calibration DATA``: auto-exposed 8-bit copies of
-path-traced HDR rooms; GAIN is the median over clipped solid angle; the region's area tells almost
-nothing — a log-linear fit leaves a factor ~4 of spread — so AREA_EXPONENT is 0). The region keeps
-its colour and its shape; a region already brighter than that is left alone. One number for every
-lamp is crude, but it brings the missing energy back in the mean, where the LDR copy holds a
-fraction of it.
+wrapping in longitude, found at :data:`LABEL_ROWS` rows) is brought to the mean luminance, relative
+to the panorama's median, that a clipped steradian has in path-traced rooms: ``L / median = GAIN *
+A**AREA_EXPONENT`` (``python -m benchmarks.ldr_clip_calibration DATA``; the region's area tells
+almost nothing there, so AREA_EXPONENT is 0), or, given a
+:class:`phyir.lighting.clip_regions.RegionModel` (fitted on real HDR panoramas), what it predicts
+from what the panorama shows around the region (not the default: docs/results.md says why). The
+region keeps its colour and its shape; a region already brighter than its target is left alone.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -22,6 +22,7 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
+from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, region_features
 from phyir.lighting.extract import components
 
 CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
@@ -40,7 +41,7 @@ class Recovery:
     regions: int
     solid_angle: float  # steradians of clipped pixels
     energy_gain: float  # luminous energy of the panorama after / before
-    method: str = "gain"  # "gain" (this module) or "clipnet" (phyir.lighting.ldr_to_hdr)
+    method: str = "gain"  # "gain", "regions" (this module) or "clipnet" (phyir.lighting.ldr_to_hdr)
 
 
 def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Tensor, int]:
@@ -55,9 +56,14 @@ def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Te
     return clipped, lab.masked_fill_(~clipped, -1), n
 
 
-def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Recovery]:
+def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
+                    model: RegionModel | None | str = None) -> tuple[Tensor, Recovery]:
     """The LDR panorama ``[3,H,W]`` (linear, clipped at ``clip``) with its clipped regions brought to
-    the calibrated radiance (see the module doc); unclipped pixels are unchanged."""
+    the calibrated gain (see the module doc), or, with a ``model``, to the radiance it predicts for
+    each (:class:`phyir.lighting.clip_regions.RegionModel`; "shipped": ``phyir/assets/
+    clip_regions.json``, None where it is missing); unclipped pixels are unchanged."""
+    if isinstance(model, str):
+        model = _shipped_model()
     x = image.float()
     H, W = x.shape[-2:]
     clipped, labels, n = clipped_regions(x, clip)
@@ -73,7 +79,10 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Re
     # per region (one pass over the pixels, not one per region): solid angle and mean luminance
     area = torch.bincount(k, w_in, minlength=n)
     mean = torch.bincount(k, lum[inside].double() * w_in, minlength=n) / area.clamp_min(1e-300)
-    target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
+    if model is not None:
+        target = max(med, 1e-6) * torch.exp(model.log_gain(region_features(x, clipped, labels, n, clip)))
+    else:
+        target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
     boost = (area > 0) & (target > mean)
     factor = torch.where(boost, target / mean.clamp_min(1e-6), torch.ones_like(mean)).float()
     out = x.clone()
@@ -82,4 +91,10 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Re
     before = float((lum.sum(-1, keepdim=True) * omega).sum())
     after = float((luminance(out).sum(-1, keepdim=True) * omega).sum())
     clipped_sr = float(omega.expand(H, W)[clipped].sum())
-    return out, Recovery(boosted, clipped_sr, after / max(before, 1e-30))
+    method = "gain" if model is None else "regions"
+    return out, Recovery(boosted, clipped_sr, after / max(before, 1e-30), method)
+
+
+@functools.cache
+def _shipped_model() -> RegionModel | None:
+    return RegionModel.load(MODEL_PATH)

@@ -1,0 +1,103 @@
+"""Fit :class:`phyir.lighting.clip_regions.RegionModel` on real HDR panoramas.
+
+Each panorama of the training split (:func:`phyir.learn.ldr_pairs.hdr_files`: the validation split
+is never read) is photographed by the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
+median to 0.18, clipped, 8 bits; :data:`EXPOSURES` can add others); every clipped region gives its
+features and its true mean luminance over the copy's median. A ridge regression of the log of that
+on the features, each region weighted by its solid angle (the big ones hold the energy), gives the
+model.
+
+    python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --out phyir/assets/clip_regions.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import luminance
+from phyir.learn.camera import ldr_copy
+from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features
+from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
+
+EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
+RIDGE = 3.0
+
+
+def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
+    """(features [n,F], log(true mean luminance / median) [n], solid angle [n]) of the clipped regions
+    of ``hdr [3,H,W]``'s 8-bit copy, exposed ``exposure`` times the evaluation camera's."""
+    ldr, s = ldr_copy(hdr)
+    if exposure != 1.0:
+        from phyir.learn.camera import decode_srgb8, encode_srgb8
+
+        ldr = decode_srgb8(encode_srgb8(hdr.float().clamp_min(0) * s * exposure))
+        s = s * exposure
+    clipped, labels, n = clipped_regions(ldr)
+    if n == 0:
+        return torch.zeros(0, len(FEATURES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64), \
+            torch.zeros(0, dtype=torch.float64)
+    H, W = hdr.shape[-2:]
+    feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL)
+    inside = labels >= 0
+    k = labels[inside].long()
+    w = (pano.solid_angles(H, 1) / W).expand(H, W)[inside].double()
+    area = torch.bincount(k, w, minlength=n)
+    true = torch.bincount(k, luminance(hdr.float() * s)[inside].double() * w, minlength=n)
+    med = max(float(luminance(ldr).median()), 1e-6)
+    keep = area > 0
+    return feats[keep], torch.log(true[keep] / area[keep] / med), area[keep]
+
+
+def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[float, tuple[float, ...]]:
+    """Weighted ridge regression (the intercept not penalised): (intercept, coefficients)."""
+    A = torch.cat((torch.ones(len(X), 1, dtype=torch.float64), X.double()), 1)
+    sw = torch.sqrt(weight / weight.mean())[:, None]
+    reg = ridge * torch.eye(A.shape[1], dtype=torch.float64)
+    reg[0, 0] = 0
+    beta = torch.linalg.solve((A * sw).T @ (A * sw) + reg, (A * sw).T @ (y.double()[:, None] * sw))[:, 0]
+    return float(beta[0]), tuple(float(b) for b in beta[1:])
+
+
+def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES,
+              ridge: float = RIDGE) -> RegionModel:
+    from phyir.io import load_panorama
+
+    X, y, w = [], [], []
+    for p in paths:
+        hdr = load_panorama(p).float()
+        for e in exposures:
+            f, t, a = region_samples(hdr, e)
+            X.append(f), y.append(t), w.append(a)
+    X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
+    intercept, coef = fit(X_, y_, w_, ridge)
+    return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from phyir.learn.ldr_pairs import hdr_files
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hdri", type=Path, required=True,
+                    help="folder of real HDR panoramas (its training split is read)")
+    ap.add_argument("--out", type=Path, required=True, help="the model's JSON file")
+    a = ap.parse_args(argv)
+    paths = hdr_files(a.hdri, "train")
+    if not paths:
+        print(f"{a.hdri}: no HDR panoramas in its training split", file=sys.stderr)
+        return 2
+    model = fit_model(paths)
+    model.save(a.out)
+    terms = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.coef, model.features))
+    print(f"{a.out}: {model.regions} regions of {len(paths)} panoramas: log(L/median) = "
+          f"{model.intercept:.3f} {terms}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

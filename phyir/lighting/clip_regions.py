@@ -1,0 +1,111 @@
+"""How much light a clipped region held, from what the 8-bit panorama still shows around it.
+
+A lamp, a window or a softbox clips at 1.0 in an 8-bit panorama; how far above the clip it was is
+written in its surroundings: its solid angle, where it sits (a ceiling lamp, a window at the
+horizon), how bright the unclipped ring around it is (the falloff of a bright source over the wall
+and the glow at its edge), and whether all three channels clipped (white) or one (coloured light).
+:class:`RegionModel` maps those :data:`FEATURES` to the log of the region's true mean luminance over
+the panorama's median, a ridge regression fitted on real HDR panoramas photographed by the
+evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
+``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery` applies it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from phyir import pano
+from phyir.color import luminance
+
+FEATURES = ("log_area", "sin_lat", "ring_near", "ring_far", "white")
+FEATURE_ROWS = 256  # the rings are measured at this many rows (2 and 8 pixels wide: ~1.4 and 5.6 degrees)
+RING_NEAR, RING_FAR = 2, 8
+MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json"
+
+
+@dataclass(frozen=True)
+class RegionModel:
+    """log(region mean luminance / panorama median) = intercept + Σ coef · feature."""
+
+    intercept: float
+    coef: tuple[float, ...]
+    features: tuple[str, ...] = FEATURES
+    fitted_on: tuple[str, ...] = ()
+    regions: int = 0
+    ridge: float = 0.0
+
+    def log_gain(self, feats: Tensor) -> Tensor:
+        """[n] predicted log(mean luminance / median) of regions with features ``feats [n, F]``."""
+        return self.intercept + feats.double() @ torch.tensor(self.coef, dtype=torch.float64)
+
+    def save(self, path: str | os.PathLike) -> None:
+        from phyir.io import atomic_write
+
+        with atomic_write(path) as tmp, open(tmp, "w") as f:
+            json.dump(asdict(self), f, indent=1)
+
+    @staticmethod
+    def load(path: str | os.PathLike = MODEL_PATH) -> RegionModel | None:
+        """The model stored at ``path``; None when there is none (or it is of other features)."""
+        try:
+            d = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            return None
+        m = RegionModel(float(d["intercept"]), tuple(float(c) for c in d["coef"]), tuple(d["features"]),
+                        tuple(d.get("fitted_on", ())), int(d.get("regions", 0)), float(d.get("ridge", 0.0)))
+        return m if m.features == FEATURES and len(m.coef) == len(FEATURES) else None
+
+
+def _dilate(mask: Tensor, r: int) -> Tensor:
+    """A boolean [H,W] mask grown by ``r`` pixels (wrapping in longitude)."""
+    x = F.pad(mask[None, None].float(), (r, r, 0, 0), mode="circular")
+    return F.max_pool2d(x, 2 * r + 1, 1, padding=(r, 0))[0, 0] > 0
+
+
+def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float) -> Tensor:
+    """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
+    [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
+    [3,H,W]`` clipped at ``clip``."""
+    H, W = ldr.shape[-2:]
+    omega = pano.solid_angles(H, 1)[:, 0] / W  # a pixel's solid angle, by row
+    inside = labels >= 0
+    k = labels[inside].long()
+    w = omega[:, None].expand(H, W)[inside].double()
+    area = torch.bincount(k, w, minlength=n)
+    sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])
+    lat = torch.bincount(k, sin_lat[:, None].expand(H, W)[inside] * w, minlength=n) / area.clamp_min(1e-300)
+    white = torch.bincount(k, (ldr >= clip).all(0)[inside].double() * w, minlength=n)
+    white = white / area.clamp_min(1e-300)
+    med = max(float(luminance(ldr).median()), 1e-6)
+    near, far = _ring_luminance(ldr, clipped, labels, n, med)
+    return torch.stack((torch.log(area.clamp_min(1e-12)), lat, torch.log(near + 1e-3), torch.log(far + 1e-3),
+                        white), 1)
+
+
+def _ring_luminance(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int,
+                    med: float) -> tuple[Tensor, Tensor]:
+    """Solid-angle mean luminance / median of the unclipped rings around each region, RING_NEAR
+    and RING_NEAR..RING_FAR pixels wide at FEATURE_ROWS rows (0.01 where a ring is empty)."""
+    H, W = ldr.shape[-2:]
+    h = min(H, FEATURE_ROWS)
+    rows, cols = torch.arange(h) * H // h, torch.arange(2 * h) * W // (2 * h)
+    lab, clip = labels[rows][:, cols], clipped[rows][:, cols]
+    lum = pano.resize_area(luminance(ldr)[None].float(), h, 2 * h)[0].double() / med
+    omega = pano.solid_angles(h, 2 * h, dtype=torch.float64)
+    out = torch.full((2, n), 0.01, dtype=torch.float64)
+    for j in range(n):
+        m = lab == j
+        if not bool(m.any()):
+            continue
+        grown = _dilate(m, RING_NEAR)
+        for i, ring in enumerate((grown & ~clip, _dilate(m, RING_FAR) & ~grown & ~clip)):
+            if bool(ring.any()):
+                out[i, j] = (lum[ring] * omega[ring]).sum() / omega[ring].sum()
+    return out[0], out[1]

@@ -1,0 +1,70 @@
+"""phyir.lighting.clip_regions and its fit (phyir.learn.fit_clip_regions): the features measure what
+they say on a drawn panorama, the ridge fit recovers a known linear law, and recover_clipped brings
+each region to the model's luminance."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from phyir import pano
+from phyir.color import luminance
+from phyir.learn.fit_clip_regions import fit
+from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features
+from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, recover_clipped
+
+H, W = 128, 256
+
+
+def lamp_panorama(ring: float) -> torch.Tensor:
+    """A grey room (0.18) with one clipped white disk of 8° radius on the horizon, its surroundings
+    out to 20° lit at ``ring`` (linear)."""
+    d = pano.directions(H, W)
+    angle = torch.rad2deg(torch.acos((d * torch.tensor([0.0, 0.0, -1.0])[:, None, None]).sum(0).clamp(-1, 1)))
+    img = torch.full((3, H, W), 0.18)
+    img[:, angle < 20] = ring
+    img[:, angle < 8] = 1.0
+    return img
+
+
+def test_features_measure_the_region():
+    feats = {}
+    for ring in (0.2, 0.8):
+        ldr = lamp_panorama(ring)
+        clipped, labels, n = clipped_regions(ldr)
+        assert n == 1
+        feats[ring] = region_features(ldr, clipped, labels, n, CLIP_LEVEL)[0]
+    f = dict(zip(FEATURES, feats[0.2].tolist()))
+    cap = 2 * math.pi * (1 - math.cos(math.radians(8)))  # the disk's solid angle
+    assert abs(math.exp(f["log_area"]) / cap - 1) < 0.1
+    assert abs(f["sin_lat"]) < 0.02 and f["white"] == 1.0
+    # the bright surround reads brighter in both rings (relative to the median, 0.18)
+    near = dict(zip(FEATURES, feats[0.8].tolist()))
+    assert near["ring_near"] > f["ring_near"] + 1 and near["ring_far"] > f["ring_far"] + 1
+    assert abs(math.exp(f["ring_near"]) - 0.2 / 0.18) < 0.1
+
+
+def test_the_ridge_fit_recovers_a_linear_law():
+    g = torch.Generator().manual_seed(0)
+    X = torch.randn(400, len(FEATURES), generator=g, dtype=torch.float64)
+    beta = torch.tensor([0.5, -0.3, 1.2, 0.0, 0.7], dtype=torch.float64)
+    y = 2.0 + X @ beta + 0.01 * torch.randn(400, generator=g, dtype=torch.float64)
+    intercept, coef = fit(X, y, torch.rand(400, generator=g, dtype=torch.float64) + 0.5, ridge=1e-6)
+    assert abs(intercept - 2.0) < 0.01 and max(abs(a - b) for a, b in zip(coef, beta.tolist())) < 0.01
+
+
+def test_recovery_brings_the_region_to_the_models_luminance(tmp_path):
+    ldr = lamp_panorama(0.5)
+    model = RegionModel(math.log(40.0), (0.0,) * len(FEATURES))  # every region: 40x the median
+    out, rec = recover_clipped(ldr, model=model)
+    clipped, labels, _ = clipped_regions(ldr)
+    med = float(luminance(ldr).median())
+    omega = pano.solid_angles(H, W)
+    lum = luminance(out)
+    mean = float((lum[clipped] * omega[clipped]).sum() / omega[clipped].sum())
+    assert abs(mean / (40 * med) - 1) < 1e-3 and rec.method == "regions" and rec.regions == 1
+    assert torch.equal(out[:, ~clipped], ldr[:, ~clipped])
+    model.save(tmp_path / "m.json")
+    assert RegionModel.load(tmp_path / "m.json") == model
+    assert recover_clipped(ldr, model=None)[1].method == "gain"
