@@ -21,19 +21,18 @@ import torch
 
 from phyir import pano
 from phyir.evaluation.real import scene_confidence
-from phyir.evaluation.real_depth import median_scale, spearman
+from phyir.evaluation.real_depth import depth_rows, spearman
 from phyir.evaluation.scans import find_scans, read_depth
 from phyir.inference import predict
 from phyir.io import load_scene
 
 
 def aligned_abs_rel(depth: torch.Tensor, truth: torch.Tensor) -> float:
+    """``phyir eval --scans``'s median-aligned AbsRel, the prediction at the truth's size."""
     d = depth.float()
     if d.shape[-2:] != truth.shape[-2:]:
         d = pano.resize_area(d, *truth.shape[-2:])
-    valid = truth > 0
-    s = median_scale(d, truth)
-    return float(((d * s - truth).abs() / truth.clamp_min(1e-3))[valid].mean())
+    return depth_rows(d, truth)["aligned.abs_rel"]
 
 
 def row(source, truth: torch.Tensor) -> dict[str, float]:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from phyir.evaluation.real_depth import median_scale
+from phyir.evaluation.real_depth import depth_rows
 from phyir.io import load_scene, save_scene
 from phyir.synth.dataset import DatasetConfig, generate_scene, scene_name
 from phyir.synth.rooms import generate_room
@@ -54,9 +54,8 @@ def hall_row(path: Path, weights: str | None) -> dict[str, float]:
     truth = gt.depth.float()
     valid = truth > 0
     ratio = float((pred[valid] / truth[valid]).median())
-    s = median_scale(pred, truth)
-    abs_rel = float(((pred * s - truth).abs() / truth.clamp_min(1e-3))[valid].mean())
-    return {"ratio": ratio, "abs_rel": abs_rel, "width": float(truth.max())}
+    return {"ratio": ratio, "abs_rel": depth_rows(pred, truth)["aligned.abs_rel"],
+            "width": float(truth.max())}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -406,12 +406,15 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     projection = plan.need_probes and plan.lighting.projects
     geo_only = {"depth", "normal"} - plan.have - plan.want if projection else set()
     geo: dict[str, Tensor] = {}
-    for k in sorted(plan.missing | geo_only, key=GM_LAYERS.index):
+    keys = sorted(plan.missing | geo_only, key=GM_LAYERS.index)
+    surface = _surface_normals(net) if {"depth", "normal"} & set(keys) else None
+    for k in keys:
         lo = net.refined.get(k, net.gm[k])[0]
-        normal_lo = _surface_normals(net) if k == "depth" else None
+        if k == "normal" and surface is not None:
+            lo, report.normals_away = surface
+            report.normals_from = "depth" if collapsed(report.normals_away) else "network"
+        normal_lo = surface[0] if k == "depth" and surface is not None else None
         up = _upsample_layer(k, lo, guide_lo, guide_hi, normal_lo) if net.net_size != (H, W) else lo
-        if k == "normal":
-            up = _plausible_normals(up, lo, net.gm["depth"][0], guide_lo, guide_hi, report)
         if k in plan.missing:
             setattr(out, k, up.float().cpu())
             report.computed.append(k)
@@ -420,29 +423,16 @@ def _upsample_layers(scene: PanoScene, out: PanoScene, net: _NetOut, plan: _Plan
     return geo
 
 
-def _surface_normals(net: _NetOut) -> Tensor | None:
-    """The normals [3,h,w] that describe GMNet's depth: its normal layer, or the depth's own where
-    that has collapsed; None without a normal layer."""
+def _surface_normals(net: _NetOut) -> tuple[Tensor, float] | None:
+    """The normals [3,h,w] that describe GMNet's depth and the share of the normal layer facing away
+    from the camera: the layer itself, or, where it has collapsed
+    (:func:`phyir.geometry.plausible.collapsed`, judged at the network's resolution), the normals of
+    the predicted depth; None without a normal layer."""
     if "normal" not in net.gm:
         return None
-    normal = net.gm["normal"][0].float()
-    return depth_normals(net.gm["depth"][0].float()) if collapsed(away_share(normal)) else normal
-
-
-def _plausible_normals(normal: Tensor, normal_lo: Tensor, depth_lo: Tensor, guide_lo: Tensor,
-                       guide_hi: Tensor, report: PredictReport) -> Tensor:
-    """The network's normals (``normal``, upsampled from ``normal_lo``), or, where they have collapsed
-    (:func:`phyir.geometry.plausible.collapsed`, judged at the network's resolution), the normals of
-    the predicted depth (at the network's resolution, guided-upsampled)."""
-    report.normals_away = away_share(normal_lo.float())
-    if not collapsed(report.normals_away):
-        report.normals_from = "network"
-        return normal
-    report.normals_from = "depth"
-    nd = depth_normals(depth_lo.float())
-    if tuple(nd.shape[-2:]) == tuple(normal.shape[-2:]):
-        return nd
-    return _upsample_layer("normal", nd, guide_lo, guide_hi)
+    normal = net.refined.get("normal", net.gm["normal"])[0].float()
+    away = away_share(normal)
+    return (depth_normals(net.gm["depth"][0].float()) if collapsed(away) else normal), away
 
 
 def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,

@@ -72,6 +72,7 @@ def methods(clipnet: str | os.PathLike | None = None) -> dict[str, Callable[[Ten
 
 def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, float]:
     """Energy ratios of the clipped regions and the log error over the clipped pixels."""
+    from phyir.lighting.clip_regions import region_means
     from phyir.lighting.hdr_recovery import clipped_regions
 
     H, W = ldr.shape[-2:]
@@ -80,11 +81,9 @@ def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, floa
         return {"clipped_sr": 0.0}
     omega = pano.solid_angles(H, W)
     lr, lt = luminance(recovered.float()), luminance(truth.float())
-    ratios = []
-    for k in range(n):
-        m = labels == k
-        if float(omega[m].sum()) >= MIN_REGION_SR:
-            ratios.append(float((lr[m] * omega[m]).sum() / (lt[m] * omega[m]).sum().clamp_min(1e-30)))
+    area, (mean_r, mean_t) = region_means(labels, n, lr, lt)
+    big = area >= MIN_REGION_SR
+    ratios = (mean_r[big] / mean_t[big].clamp_min(1e-30)).tolist()
     w = omega[clipped]
     err = (torch.log(lr[clipped] + 1e-4) - torch.log(lt[clipped] + 1e-4)).abs()
     out = {"clipped_sr": float(w.sum()), "clipped_log_err": float((err * w).sum() / w.sum()),

@@ -68,16 +68,17 @@ def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
 AUTO_EXPOSURE_KEY = 0.18  # a camera's auto-exposure: the median luminance of the copy
 
 
-def ldr_copy(hdr: Tensor) -> tuple[Tensor, float]:
+def ldr_copy(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, float]:
     """The auto-exposed 8-bit sRGB copy of a linear image [3,H,W], decoded back to linear, and the
     exposure factor: ``clip(hdr × s, 0, 1)`` sRGB-encoded, rounded to 8 bits, decoded, with
-    s = :data:`AUTO_EXPOSURE_KEY` / median luminance (what a camera's JPEG of the room holds; the
-    evaluation's camera, :mod:`phyir.evaluation.real` and ``ldr_light``, and ClipNet's validation)."""
+    s = ``exposure`` × :data:`AUTO_EXPOSURE_KEY` / median luminance (what a camera's JPEG of the room
+    holds; the evaluation's camera, :mod:`phyir.evaluation.real` and ``ldr_light``, and ClipNet's
+    validation, at ``exposure`` 1)."""
     from phyir.color import luminance
 
     x = torch.nan_to_num(hdr.float(), nan=0.0, posinf=0.0).clamp_min(0)
     med = float(luminance(x).median())
-    s = AUTO_EXPOSURE_KEY / med if med > 0 else 1.0
+    s = exposure * (AUTO_EXPOSURE_KEY / med if med > 0 else 1.0)
     return decode_srgb8(encode_srgb8(x * s)), s
 
 

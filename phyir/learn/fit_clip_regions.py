@@ -19,10 +19,9 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from phyir import pano
 from phyir.color import luminance
 from phyir.learn.camera import ldr_copy
-from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features
+from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features, region_means
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
 
 EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
@@ -32,26 +31,16 @@ RIDGE = 3.0
 def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
     """(features [n,F], log(true mean luminance / median) [n], solid angle [n]) of the clipped regions
     of ``hdr [3,H,W]``'s 8-bit copy, exposed ``exposure`` times the evaluation camera's."""
-    ldr, s = ldr_copy(hdr)
-    if exposure != 1.0:
-        from phyir.learn.camera import decode_srgb8, encode_srgb8
-
-        ldr = decode_srgb8(encode_srgb8(hdr.float().clamp_min(0) * s * exposure))
-        s = s * exposure
+    ldr, s = ldr_copy(hdr, exposure)
     clipped, labels, n = clipped_regions(ldr)
     if n == 0:
         return torch.zeros(0, len(FEATURES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.float64)
-    H, W = hdr.shape[-2:]
     feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL)
-    inside = labels >= 0
-    k = labels[inside].long()
-    w = (pano.solid_angles(H, 1) / W).expand(H, W)[inside].double()
-    area = torch.bincount(k, w, minlength=n)
-    true = torch.bincount(k, luminance(hdr.float() * s)[inside].double() * w, minlength=n)
+    area, (true,) = region_means(labels, n, luminance(hdr.float() * s))
     med = max(float(luminance(ldr).median()), 1e-6)
     keep = area > 0
-    return feats[keep], torch.log(true[keep] / area[keep] / med), area[keep]
+    return feats[keep], torch.log(true[keep] / med), area[keep]
 
 
 def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[float, tuple[float, ...]]:

@@ -69,20 +69,26 @@ def _dilate(mask: Tensor, r: int) -> Tensor:
     return F.max_pool2d(x, 2 * r + 1, 1, padding=(r, 0))[0, 0] > 0
 
 
+def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Tensor]]:
+    """The solid angle [n] (float64) of each region of ``labels`` [H,W] (0..n-1, -1 outside) and the
+    solid-angle-weighted mean of each ``maps`` [H,W] over it ([n] each): one pass over the pixels,
+    not one per region."""
+    H, W = labels.shape[-2:]
+    inside = labels >= 0
+    k = labels[inside].long()
+    w = (pano.solid_angles(H, 1) / W).expand(H, W)[inside].double()  # a pixel's solid angle, by row
+    area = torch.bincount(k, w, minlength=n)
+    return area, [torch.bincount(k, m[inside].double() * w, minlength=n) / area.clamp_min(1e-300)
+                  for m in maps]
+
+
 def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float) -> Tensor:
     """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
     [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
     [3,H,W]`` clipped at ``clip``."""
     H, W = ldr.shape[-2:]
-    omega = pano.solid_angles(H, 1)[:, 0] / W  # a pixel's solid angle, by row
-    inside = labels >= 0
-    k = labels[inside].long()
-    w = omega[:, None].expand(H, W)[inside].double()
-    area = torch.bincount(k, w, minlength=n)
-    sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])
-    lat = torch.bincount(k, sin_lat[:, None].expand(H, W)[inside] * w, minlength=n) / area.clamp_min(1e-300)
-    white = torch.bincount(k, (ldr >= clip).all(0)[inside].double() * w, minlength=n)
-    white = white / area.clamp_min(1e-300)
+    sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
+    area, (lat, white) = region_means(labels, n, sin_lat, (ldr >= clip).all(0))
     med = max(float(luminance(ldr).median()), 1e-6)
     near, far = _ring_luminance(ldr, clipped, labels, n, med)
     return torch.stack((torch.log(area.clamp_min(1e-12)), lat, torch.log(near + 1e-3), torch.log(far + 1e-3),

@@ -22,7 +22,7 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, region_features
+from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, region_features, region_means
 from phyir.lighting.extract import components
 
 CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
@@ -73,12 +73,7 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     omega = pano.solid_angles(H, 1) / W
     lum = luminance(x)
     med = float(lum.median())
-    inside = labels >= 0
-    k = labels[inside].long()
-    w_in = omega.expand(H, W)[inside].double()
-    # per region (one pass over the pixels, not one per region): solid angle and mean luminance
-    area = torch.bincount(k, w_in, minlength=n)
-    mean = torch.bincount(k, lum[inside].double() * w_in, minlength=n) / area.clamp_min(1e-300)
+    area, (mean,) = region_means(labels, n, lum)
     if model is not None:
         target = max(med, 1e-6) * torch.exp(model.log_gain(region_features(x, clipped, labels, n, clip)))
     else:
@@ -86,7 +81,8 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     boost = (area > 0) & (target > mean)
     factor = torch.where(boost, target / mean.clamp_min(1e-6), torch.ones_like(mean)).float()
     out = x.clone()
-    out[:, inside] = x[:, inside] * factor[k]
+    inside = labels >= 0
+    out[:, inside] = x[:, inside] * factor[labels[inside].long()]
     boosted = int(boost.sum())
     before = float((lum.sum(-1, keepdim=True) * omega).sum())
     after = float((luminance(out).sum(-1, keepdim=True) * omega).sum())
