@@ -174,10 +174,11 @@ def cross_file_privates(trees: dict[str, ast.AST]) -> list[str]:
             if attr not in sets and attr in owners]
 
 
-def test_no_private_attribute_is_used_outside_the_file_that_sets_it():
-    """In the viewer, a part reads another's state through a public name (a property, a method):
-    the part that sets ``_x`` is the only one that reads it."""
-    trees = {p.relative_to(REPO).as_posix(): ast.parse(p.read_text()) for p in sources("viewer")}
+@pytest.mark.parametrize("package", ["phyir", "viewer", "benchmarks"])
+def test_no_private_attribute_is_used_outside_the_file_that_sets_it(package):
+    """A part reads another's state through a public name (a property, a method): the file that
+    sets ``_x`` is the only one that reads it."""
+    trees = {p.relative_to(REPO).as_posix(): ast.parse(p.read_text()) for p in sources(package)}
     bad = cross_file_privates(trees)
     assert not bad, "\n".join(bad)
 
@@ -196,21 +197,49 @@ def test_the_private_attribute_rule_flags_reads_from_another_file():
     assert not cross_file_privates({n: ast.parse(s) for n, s in allowed.items()})
 
 
-def test_the_lighting_methods_are_listed_once():
-    """The lighting methods are named by the registry (phyir.estimators, filled from the entry points),
-    not by a tuple of their names kept in step by hand."""
-    names = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]
-                ["phyir.lighting_methods"])
-    assert {"fused", "lnet", "projection"} <= names
-    bad = []
-    for p in sources(*SOURCE_DIRS):
-        for node in ast.walk(ast.parse(p.read_text())):
-            if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
-                strings = {e.value for e in node.elts if isinstance(e, ast.Constant)}
-                if names <= strings:
-                    bad.append(f"{p.relative_to(REPO)}:{node.lineno}: lists the lighting methods (use "
-                               "phyir.estimators.lighting_methods())")
+ESTIMATOR_GROUPS = ("phyir.lighting_methods", "phyir.geometry_networks")
+
+
+def estimator_listings(tree: ast.AST, groups: dict[str, set[str]]) -> list[tuple[int, str]]:
+    """(line, group) of each place that names a group's estimators by hand: a literal tuple, list
+    or set holding all of a group's names (two or more), or an argparse ``choices=`` literal holding
+    any of them."""
+    found = []
+    for node in ast.walk(tree):
+        literal = None
+        if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+            literal, whole = node, True
+        elif isinstance(node, ast.keyword) and node.arg == "choices" and isinstance(
+                node.value, (ast.Tuple, ast.List, ast.Set)):
+            literal, whole = node.value, False
+        if literal is None:
+            continue
+        strings = {e.value for e in literal.elts if isinstance(e, ast.Constant)}
+        for group, names in groups.items():
+            if (whole and len(names) > 1 and names <= strings) or (not whole and names & strings):
+                found.append((literal.lineno, group))
+    return found
+
+
+def test_the_estimator_names_are_defined_once():
+    """Lighting methods and geometry networks are named by the registry (phyir.estimators, filled
+    from the entry points): no tuple of their names kept in step by hand, no hand-written choices."""
+    entry = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]
+    groups = {g: set(entry[g]) for g in ESTIMATOR_GROUPS}
+    assert {"fused", "lnet", "projection"} <= groups["phyir.lighting_methods"]
+    assert "gmnet" in groups["phyir.geometry_networks"]
+    bad = [f"{p.relative_to(REPO)}:{line}: lists the {group} (use phyir.estimators)"
+           for p in sources(*SOURCE_DIRS)
+           for line, group in estimator_listings(ast.parse(p.read_text()), groups)]
     assert not bad, "\n".join(bad)
+
+
+def test_the_estimator_rule_flags_hand_written_lists():
+    groups = {"light": {"a", "b"}, "geo": {"g"}}
+    flagged = "X = ('a', 'b', 'c')\np.add_argument('--geometry', choices=['g'])\n"
+    assert estimator_listings(ast.parse(flagged), groups) == [(1, "light"), (2, "geo")]
+    allowed = "X = ('a', 'c')\nY = ('g', 'lnet')\np.add_argument('--geometry', choices=names())\n"
+    assert estimator_listings(ast.parse(allowed), groups) == []
 
 
 def test_sizes_stay_on_a_screen():

@@ -210,7 +210,7 @@ def _medians(meter: M.MetricMeter) -> dict[str, float]:
     return {k: statistics.median(r[k] for r in meter.scenes if k in r) for k in keys}
 
 
-# the README's table of the light at points (``python scripts/points_table.py points.json``): its rows
+# the README's table of the light at points (``python -m benchmarks.points_table points.json``): its rows
 # in order, (method, label) and (result prefix, where)
 TABLE_METHODS = (("light_at", "`light_at` (ours)"), ("fused", "the fused probe grid (`phyir predict`)"),
                  ("lnet", "LNet alone (probe grid)"),

@@ -59,9 +59,10 @@ class Prims:
     g_hi: Tensor  # [G,3]
 
     def __post_init__(self):
-        self._derive()
+        self.derive()
 
-    def _derive(self) -> None:
+    def derive(self) -> None:
+        """(Re)compute the tensors derived from the fields; call again after changing a field."""
         self.q_n = torch.linalg.cross(self.q_ex, self.q_ey)
         # o @ q_mat = (o.n, o.ex, o.ey) for every quad
         self.q_mat = torch.cat((self.q_n, self.q_ex, self.q_ey), 0).T.contiguous()  # [3,3Q]

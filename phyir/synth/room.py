@@ -102,7 +102,7 @@ class Room:
             hi[p.group] = np.maximum(hi[p.group], b)
         prims.g_lo = torch.tensor(lo - 1e-3, dtype=torch.float32)
         prims.g_hi = torch.tensor(hi + 1e-3, dtype=torch.float32)
-        prims._derive()
+        prims.derive()
         prims = prims.to(device)
         prim_mat = torch.tensor([self.prims[i].mat for i in order], dtype=torch.long, device=device)
         emit = [(gi, self.prims[i]) for gi, i in enumerate(order)

@@ -548,7 +548,7 @@ def test_aspect_ratio_boundary_is_exact(H, W, ok):
 
 
 # ---------------------------------------------------------------------------------------------
-# the second corpus (benchmarks/robustness_corpus.py): what it found in classes 1-4 and 9
+# the second corpus (tests/support/robustness): what it found in classes 1-4 and 9
 
 
 def test_special_files_as_config_weights_and_data_are_said_as_such(tmp_path, pano, capsys):

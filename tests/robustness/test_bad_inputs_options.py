@@ -534,7 +534,7 @@ def test_train_resume_with_other_options_is_refused(tmp_path, capsys, dataset):
 
 
 # ---------------------------------------------------------------------------------------------
-# the second corpus (benchmarks/robustness_corpus.py): what it found in classes 5-8
+# the second corpus (tests/support/robustness): what it found in classes 5-8
 
 
 def test_uniform_panoramas_warn_that_the_layers_are_guesses(tmp_path, capsys):

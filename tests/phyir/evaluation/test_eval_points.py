@@ -111,7 +111,7 @@ def test_the_fused_and_lnet_rows_read_their_own_grids(room):
 
 
 def test_the_readme_table():
-    """points_table (scripts/points_table.py prints it): a row per method and place found in the JSON,
+    """points_table (benchmarks/points_table.py prints it): a row per method and place found in the JSON,
     in the README's order."""
     keys = ("diffuse.rel_l1", "diffuse.ratio", "diffuse.colour_deg", "matte_silver.rel_l1", "probe_log_mse",
             "relight_diffuse", "relight_matte_silver", "relight_mirror_silver")

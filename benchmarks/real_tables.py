@@ -1,7 +1,7 @@
 """README tables of ``phyir eval --real``: geometry facts and lighting at a point, from its JSON.
 
     phyir eval --real ../shared/panos --json real.json --sheet docs/img/real_eval_sheet.png
-    python scripts/real_tables.py real.json
+    python -m benchmarks.real_tables real.json
 """
 
 from __future__ import annotations

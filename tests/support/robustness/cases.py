@@ -1,5 +1,5 @@
 # ruff: noqa: E501  (tables of cases: one case per entry reads better than wrapped)
-"""The cases of the second robustness corpus (benchmarks/robustness_corpus.py), one function per
+"""The cases of the second robustness corpus (tests/support/robustness/corpus.py), one function per
 class of issue 22.  None repeats a case of tests/robustness/ (those are the first corpus)."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-from benchmarks import robustness_inputs as mk
-from benchmarks.robustness_checks import (
+from support.robustness import inputs as mk
+from support.robustness.checks import (
     Case,
     both,
     chain,

@@ -1,6 +1,6 @@
-"""A second, independent robustness corpus for issue 22 (docs/robustness.md, "Second corpus").
+"""A second, independent robustness corpus (docs/robustness.md, "Second corpus").
 
-Every input is made by code in a temporary folder (``benchmarks/robustness_inputs.py``); each case runs
+Every input is made by code in a temporary folder (``tests/support/robustness/inputs.py``); each case runs
 a real command (``phyir ...`` / ``phyir-view``) in its own folder, under a timeout, with its peak
 memory measured (``ru_maxrss`` from ``wait4``: this driver imports neither numpy nor torch, so the
 figure is the command's own).  Outcomes:
@@ -11,7 +11,7 @@ figure is the command's own).  Outcomes:
   outputs), MEMORY (> 1.5 GB), BAD-MESSAGE (several lines, nothing named, raw control characters),
   SILENT-NONSENSE (exit 0, meaningless output and no warning).
 
-    python -m benchmarks.robustness_corpus [--json OUT] [--only SUBSTRING] [--keep DIR] [--list]
+    PYTHONPATH=tests python -m support.robustness.corpus [--json OUT] [--only SUBSTRING] [--keep DIR] [--list]
 
 Prints a table case -> outcome and the counts per class; exits 1 if any case is not OK.
 """
@@ -33,7 +33,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from benchmarks import robustness_cases_more, robustness_checks
+from support.robustness import cases_more, checks
 
 BIN = Path(sys.executable).parent
 MEMORY_MB = 1536
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.keep and root.exists():
         shutil.rmtree(root)
     base = root / "base"
-    cases = robustness_cases_more.all_cases(base)
+    cases = cases_more.all_cases(base)
     if args.only:
         cases = [c for c in cases if any(s in c.key for s in args.only)]
     if args.list:
@@ -200,10 +200,13 @@ def main(argv: list[str] | None = None) -> int:
             print(c.key)
         return 0
     t_all = time.monotonic()
-    subprocess.run([sys.executable, "-m", "benchmarks.robustness_inputs", str(base)], check=True, timeout=600)
+    tests = str(Path(__file__).resolve().parents[2])  # the folder holding support/, for the child
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (tests, os.environ.get("PYTHONPATH"))))}
+    subprocess.run([sys.executable, "-m", "support.robustness.inputs", str(base)], check=True, timeout=600,
+                   env=env)
     logs = root / "logs"
     logs.mkdir()
-    egl = robustness_checks.have_egl()
+    egl = checks.have_egl()
     results = []
     for c in cases:
         folder = root / "cases" / slug(c.key)

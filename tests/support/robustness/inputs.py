@@ -1,4 +1,4 @@
-"""Inputs of the second robustness corpus (benchmarks/robustness_corpus.py), made by code.
+"""Inputs of the second robustness corpus (tests/support/robustness/corpus.py), made by code.
 
 ``base(root)`` runs in a child interpreter that imports phyir (the corpus driver stays small, so its
 children's peak memory is their own): valid panoramas and scenes, a tiny dataset and a checkpoint,

@@ -1,6 +1,6 @@
 # ruff: noqa: E501  (tables of cases: one case per entry reads better than wrapped)
 """Cases of the second robustness corpus, classes 6-9: weights files, numeric options, training
-inputs, messages (benchmarks/robustness_corpus.py)."""
+inputs, messages (tests/support/robustness/corpus.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import json
 import re
 from pathlib import Path
 
-from benchmarks import robustness_inputs as mk
-from benchmarks.robustness_cases import (
+from support.robustness import inputs as mk
+from support.robustness.cases import (
     EXPORT,
     INSERT,
     PRED,
@@ -21,7 +21,7 @@ from benchmarks.robustness_cases import (
     class4,
     class5,
 )
-from benchmarks.robustness_checks import (
+from support.robustness.checks import (
     SIZES,
     VALUES,
     WEIGHTS,

@@ -1,5 +1,5 @@
 """Case type, input setups and result checks of the second robustness corpus
-(benchmarks/robustness_corpus.py).
+(tests/support/robustness/corpus.py).
 
 A case is a command line (``{b}``: the base inputs' folder, ``{w}``: the case's own folder, also its
 working directory), what to expect (``refuse``: exit 2 with one line naming ``names``; ``ok``: exit 0;

@@ -1,7 +1,7 @@
 """README table of ``phyir eval --data --points``: the light at a point against probes path-traced there.
 
     phyir eval --data data/h128 --split train --limit 11 --points 8 --spp 32 --json points.json
-    python scripts/points_table.py points.json
+    python -m benchmarks.points_table points.json
 """
 
 from __future__ import annotations
