@@ -1,35 +1,88 @@
 """The imgui interface: :class:`Gui` owns the imgui context and its frame; the menu bar
 (``menu_bar``), side panel (``side_panel``, with the open images: ``images_panel``), status bar
 (``status_bar``) and the view's mouse and keyboard handling (``input``) are the parts it is made of.
+The side panel's sections after the probes are objects the Gui owns (``sections``: the inserted
+objects' ``ObjectsPanel``, and any added with ``add_section``).
 
-Everything here only reads the :class:`~viewer.app.App`'s state and calls its methods, so a click
-and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL calls
-use framebuffer pixels (``* scale`` on high-DPI screens).
+Everything here reads the app's collaborators (:class:`ViewerApp`) and calls their methods, so a
+click and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL
+calls use framebuffer pixels (``* scale`` on high-DPI screens).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from viewer.ui.images_panel import ImagesPanel
 from viewer.ui.input import ViewInput
 from viewer.ui.menu_bar import MenuBar
+from viewer.ui.objects_panel import ObjectsPanel
 from viewer.ui.side_panel import SidePanel
 from viewer.ui.status_bar import StatusBar
 from viewer.ui.widgets import PANEL_WIDTH, imgui
 
 if TYPE_CHECKING:
-    from viewer.app import App
+    from viewer.app.camera import Camera
+    from viewer.app.common import Messages
+    from viewer.app.comparison import Comparison
+    from viewer.app.composer import ViewComposer
+    from viewer.app.display import DisplaySettings
+    from viewer.app.document import Document
+    from viewer.app.images import ImageList
+    from viewer.app.loader import Loader
+    from viewer.app.objects import InsertedObjects
+    from viewer.app.pins import Pins
 
-__all__ = ["PANEL_WIDTH", "Gui"]
+__all__ = ["PANEL_WIDTH", "Gui", "Section", "ViewerApp"]
+
+
+class ViewerApp(Protocol):
+    """What the interface uses of the app (:class:`viewer.app.App`): its collaborators and window."""
+
+    surface: object
+    ctx: object
+    recent: object
+    frame_times: object
+    images: ImageList
+    loader: Loader
+    display: DisplaySettings
+    camera: Camera
+    pins: Pins
+    comparison: Comparison
+    objects: InsertedObjects
+    composer: ViewComposer
+    messages: Messages
+
+    @property
+    def window(self): ...
+
+    @property
+    def doc(self) -> Document: ...
+
+    def view_rect(self) -> tuple[int, int, int, int]: ...
+
+    def request_redraw(self, frames: int = 3) -> None: ...
+
+    def request_screenshot(self, path=None) -> None: ...
+
+
+class Section(Protocol):
+    """A section of the side panel: ``draw()`` fills it under a collapsing header ``title`` (an
+    imgui label: ``"Name (3)###name"`` keeps its id while the count changes), open at first if
+    ``default_open``."""
+
+    title: str
+    default_open: bool
+
+    def draw(self) -> None: ...
 
 
 class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
     """The imgui context and its frame; the interface is built by the parts it is made of."""
 
-    def __init__(self, app: App):
+    def __init__(self, app: ViewerApp):
         self.app = app
         self.ctx = imgui.create_context()
         imgui.set_current_context(self.ctx)  # create_context keeps an existing context current
@@ -68,6 +121,16 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self._hist_key: tuple | None = None  # the side panel's histogram: what it was computed for
         self._hist = None
         self.histogram_open: bool | None = None  # force the Histogram section open/closed (None: the user's)
+        self.objects_panel = ObjectsPanel(app.objects, app.camera, app.messages)
+        self.sections: list[Section] = [self.objects_panel]
+        app.pins.on_pinned = self._scroll_to_pin
+
+    def add_section(self, section: Section) -> None:
+        """Draw ``section`` in the side panel, after the probes and the sections added before it."""
+        self.sections.append(section)
+
+    def _scroll_to_pin(self, index: int) -> None:
+        self.scroll_to_pin = index
 
     # -- frame --------------------------------------------------------------------------------
     @property

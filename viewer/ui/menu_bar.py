@@ -31,52 +31,53 @@ class MenuBar:
             if imgui.begin_menu("Recent files", bool(recent)):
                 for f in recent:
                     if imgui.menu_item_simple(f):
-                        app.add_image(f)
+                        app.images.add(f)
                 imgui.end_menu()
-            if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.path is not None):
-                app.reload()
-            if imgui.menu_item_simple("Close image", "Ctrl+W", enabled=app.entry.source is not None):
-                app.close_image()
-            _, app.watch = imgui.menu_item("Reload when the file changes", "", app.watch)
+            if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.doc.path is not None):
+                app.images.reload()
+            if imgui.menu_item_simple("Close image", "Ctrl+W", enabled=app.images.entry.source is not None):
+                app.images.close()
+            _, app.images.watch = imgui.menu_item("Reload when the file changes", "", app.images.watch)
             imgui.separator()
-            if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
+            if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.doc.path is not None):
                 self.save_screenshot()
-            if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=app.scene is not None):
+            scene = app.doc.scene is not None
+            if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=scene):
                 self._export_gltf()
             if imgui.menu_item_simple("Quit", "Ctrl+Q"):
                 self.request_quit()
             imgui.end_menu()
         if imgui.begin_menu("View"):
             for kind, key in (("equirect", "V"), ("perspective", "V")):
-                if imgui.menu_item_simple(kind.capitalize(), key, app.view_kind == kind):
-                    app.set_view(kind)
+                if imgui.menu_item_simple(kind.capitalize(), key, app.camera.view_kind == kind):
+                    app.camera.set_view(kind)
             imgui.separator()
             if imgui.menu_item_simple("Fit", "F"):
-                app.set_view("equirect")
-                app.fit()
+                app.camera.set_view("equirect")
+                app.camera.fit()
             if imgui.menu_item_simple("1:1", "Z"):
-                app.set_view("equirect")
-                app.one_to_one()
+                app.camera.set_view("equirect")
+                app.camera.one_to_one()
             imgui.end_menu()
         if imgui.begin_menu("Images"):
             self._images_menu()
             imgui.end_menu()
         if imgui.begin_menu("Layer"):
-            avail = app.available()
+            avail = app.doc.available()
             for name, key in zip(LAYERS, KEYS):
-                if imgui.menu_item_simple(name, key, app.layer == name, name in avail):
-                    app.set_layer(name)
-            if app.gt is not None:
+                if imgui.menu_item_simple(name, key, app.display.layer == name, name in avail):
+                    app.display.set_layer(name)
+            if app.doc.gt is not None:
                 imgui.separator()
-                if imgui.menu_item_simple("Show ground truth", "G", app.show_gt):
-                    app.set_source(not app.show_gt)
+                if imgui.menu_item_simple("Show ground truth", "G", app.doc.show_gt):
+                    app.display.set_source(not app.doc.show_gt)
             imgui.end_menu()
         if imgui.begin_menu("Model"):
-            can = app.path is not None and not app.busy
+            can = app.doc.path is not None and not app.loader.busy
             if imgui.menu_item_simple("Predict all layers and compare with the file's", enabled=can):
-                app.open(app.path, compare=True)
-            if imgui.menu_item_simple("Cancel", "Esc", enabled=app.busy):
-                app.cancel()
+                app.open(app.doc.path, compare=True)
+            if imgui.menu_item_simple("Cancel", "Esc", enabled=app.loader.busy):
+                app.images.cancel()
             imgui.end_menu()
         if imgui.begin_menu("Help"):
             if imgui.menu_item_simple("Keys and mouse", "H"):
@@ -97,7 +98,7 @@ class MenuBar:
             enter, self._path_text = imgui.input_text("##path", self._path_text,
                                                       imgui.InputTextFlags_.enter_returns_true)
             if (imgui.button("Open") or enter) and self._path_text.strip():
-                app.add_image(os.path.expanduser(self._path_text.strip()))
+                app.images.add(os.path.expanduser(self._path_text.strip()))
                 imgui.close_current_popup()
             imgui.same_line()
             if imgui.button("Cancel") or imgui.is_key_pressed(imgui.Key.escape):
@@ -112,7 +113,7 @@ class MenuBar:
             return
         from imgui_bundle import portable_file_dialogs as pfd
 
-        start = os.path.dirname(self.app.path) if self.app.path else os.getcwd()
+        start = os.path.dirname(self.app.doc.path) if self.app.doc.path else os.getcwd()
         filters = ["Panoramas and scenes", "*.hdr *.exr *.png *.jpg *.jpeg", "All files", "*"]
         self._dialog = pfd.open_file("Open panoramas or scenes", start, filters, pfd.opt.multiselect)
 
@@ -121,35 +122,35 @@ class MenuBar:
             files = self._dialog.result()
             self._dialog = None
             for k, f in enumerate(files or ()):  # added to the open images, the first shown
-                self.app.add_image(f) if k == 0 else self.app.queue_image(f)
+                self.app.images.add(f) if k == 0 else self.app.images.queue(f)
 
     def _images_menu(self) -> None:
         """The open images (select one), switching, the reference and the comparison modes."""
         app = self.app
         for k, e in enumerate(app.images):
-            if imgui.menu_item_simple(f"{k + 1} {app.image_label(e)}", "", k == app.current):
-                app.select_image(k)
+            if imgui.menu_item_simple(f"{k + 1} {app.images.label(e)}", "", k == app.images.current):
+                app.images.select(k)
         imgui.separator()
         many = len(app.images) > 1
         if imgui.menu_item_simple("Next image", "] / PageDown", enabled=many):
-            app.next_image(1)
+            app.images.next(1)
         if imgui.menu_item_simple("Previous image", "[ / PageUp", enabled=many):
-            app.next_image(-1)
-        if imgui.menu_item_simple("Use as reference", "Shift+R", app.reference is app.entry):
-            app.set_reference(None if app.reference is app.entry else app.current)
+            app.images.next(-1)
+        if imgui.menu_item_simple("Use as reference", "Shift+R", app.images.reference is app.images.entry):
+            app.images.set_reference(None if app.images.reference is app.images.entry else app.images.current)
         for mode in (None, *MODES):
-            if imgui.menu_item_simple(f"Compare: {MODE_NAMES[mode]}", "D", app.compare_mode == mode,
-                                      app.reference is not None):
-                app.set_compare(mode)
+            if imgui.menu_item_simple(f"Compare: {MODE_NAMES[mode]}", "D", app.comparison.mode == mode,
+                                      app.images.reference is not None):
+                app.comparison.set_mode(mode)
 
     def save_screenshot(self) -> None:
         self.app.request_screenshot()
 
     def _export_gltf(self) -> None:
         try:
-            self.app.export_gltf()
+            self.app.objects.export_gltf()
         except (PhyIRError, OSError) as e:  # a scene without depth, a read-only folder: say so, keep running
-            self.app.note("error", f"export: {e}")
+            self.app.messages.note("error", f"export: {e}")
 
     def request_quit(self) -> None:
         self.quit_requested = True

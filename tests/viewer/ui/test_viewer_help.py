@@ -71,7 +71,7 @@ def test_object_keys_do_what_the_help_says(app):
 
     from viewer.ui.object_keys import OBJECT_KEYS
 
-    panel = app.objects
+    panel, inserted = app.gui.objects_panel, app.objects
     keys = {(k.key, k.mods): k for k in OBJECT_KEYS}
 
     def hit(key: str, mods: str = "") -> None:
@@ -87,15 +87,15 @@ def test_object_keys_do_what_the_help_says(app):
     assert ("a", "") in keys
     hit("a")
     hit("a")
-    assert len(panel.objects) == 2 and panel.selected == 1
+    assert len(inserted.objects) == 2 and inserted.selected == 1
     hit("n")
-    assert panel.selected == 0
+    assert inserted.selected == 0
     hit("n", "shift")
-    assert panel.selected == 1
+    assert inserted.selected == 1
     hit("d", "ctrl")
-    assert len(panel.objects) == 3 and panel.selected == 2
+    assert len(inserted.objects) == 3 and inserted.selected == 2
     hit("delete", "ctrl")
-    assert len(panel.objects) == 2
+    assert len(inserted.objects) == 2
     gizmo = panel.gizmo_op
     hit("m")
     assert panel.gizmo_op != gizmo
@@ -104,30 +104,30 @@ def test_object_keys_do_what_the_help_says(app):
     hit("p")
     assert not panel.drop_mode
     hit("b")
-    assert not panel.hook.enabled
+    assert not inserted.hook.enabled
     hit("b")
-    assert panel.hook.enabled
+    assert inserted.hook.enabled
     hit("d")  # D alone is the comparison's key, not duplicate
-    assert len(panel.objects) == 2
+    assert len(inserted.objects) == 2
     tested = {("a", ""), ("n", ""), ("n", "shift"), ("d", "ctrl"), ("delete", "ctrl"), ("m", ""), ("p", ""),
               ("b", "")}
     assert set(keys) == tested, "a new object key: test what it does here"
-    while panel.objects:
-        panel.delete(0)
+    while inserted.objects:
+        inserted.delete(0)
 
 
 def test_side_panel_lines_fit_its_width(app):
     """A pinned probe's grid-cell line, the read-out and the file name wrap instead of running off
     the panel's right edge: the panel's content is no wider than the room inside it."""
-    app.pin_probe(100.0, 40.0)
+    app.pins.pin_probe(100.0, 40.0)
     x, y, w, h = app.view_rect()
     s = app.surface.scale
     app.gui.io.add_mouse_pos_event((x + w / 2) / s, (y + h / 2) / s)  # the read-out shows that pixel
     for _ in range(3):
         app.frame()
-    assert app.hover is not None and app.pins[0].block is not None
+    assert app.camera.hover is not None and app.pins[0].block is not None
     panel = imgui_window(app, "##panel")
     room = panel.inner_rect.max.x - panel.inner_rect.min.x - 2 * panel.window_padding.x
     assert panel.content_size.x <= room + 0.5, (panel.content_size.x, room)
     app.gui.io.add_mouse_pos_event(-3.4e38, -3.4e38)
-    app.unpin()
+    app.pins.unpin()
