@@ -1,7 +1,8 @@
 """The control socket's commands (``phyir-view --listen``, docs/viewer.md): each takes the App and the
-command's arguments and returns the reply's fields, calling the same App methods as the menus and
-keys; run on the UI thread between frames (``viewer.app.remote``).  A bad argument raises
-PhyIRError, which becomes ``{"ok": false, "error": ...}``."""
+command's arguments and returns the reply's fields, calling the same methods of the App's
+collaborators (``app.images``, ``app.display``, ...) as the menus and keys; run on the UI thread
+between frames (``viewer.app.remote``).  A bad argument raises PhyIRError, which becomes
+``{"ok": false, "error": ...}``."""
 
 from __future__ import annotations
 
