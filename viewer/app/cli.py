@@ -275,7 +275,7 @@ def apply_args(app: App, args, wait: bool) -> None:
         app.display.set_channel(args.channel)
     app.images.watch = bool(args.watch)
     if args.histogram and app.gui is not None:
-        app.gui.histogram_open = True
+        app.gui.side_panel.histogram_open = True
     if args.colormap:
         for name in app.display.scalar:
             app.display.set_colormap(args.colormap, name)

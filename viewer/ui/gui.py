@@ -1,8 +1,8 @@
-"""The imgui interface: :class:`Gui` owns the imgui context and its frame; the menu bar
-(``menu_bar``), side panel (``side_panel``, with the open images: ``images_panel``), status bar
-(``status_bar``) and the view's mouse and keyboard handling (``input``) are the parts it is made of.
-The side panel's sections after the probes are objects the Gui owns (``sections``: the inserted
-objects' ``ObjectsPanel``, and any added with ``add_section``).
+"""The imgui interface: :class:`Gui` owns the imgui context and its frame, and the parts the interface
+is made of, each with its own state: the menu bar (``menu``: ``menu_bar``), the side panel
+(``side_panel``, with the open images: ``images_panel``), the status bar (``status_bar``), the view's
+mouse and keyboard handling (``input``) and the side panel's sections after the probes
+(``sections``: the inserted objects' ``objects_panel``, and any added with ``add_section``).
 
 Everything here reads the app's collaborators (:class:`ViewerApp`) and calls their methods, so a
 click and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL
@@ -81,8 +81,9 @@ class Section(Protocol):
     def draw(self) -> None: ...
 
 
-class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
-    """The imgui context and its frame; the interface is built by the parts it is made of."""
+class Gui:
+    """The imgui context and its frame, the scale (``scale``: logical px, ``fb_scale``: framebuffer
+    px per logical px); the interface is built by the parts it owns."""
 
     def __init__(self, app: ViewerApp):
         self.app = app
@@ -110,21 +111,13 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
 
             self.impl = ProgrammablePipelineRenderer()
         self._last = time.perf_counter()
-        self._dialog = None          # portable_file_dialogs.open_file in flight
-        self._path_popup = False     # the fallback "open path" popup
-        self._path_text = ""
-        self._dragged = False
-        self._split_drag = False  # the split view's divide is being dragged
-        self._show_help = False
-        self.help_lines: list[tuple[str, float, float]] = []  # the help window's (text, x, y), for tests
-        self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
-        self.quit_requested = False
-        self.scroll_to_pin: int | None = None
-        self._hist_key: tuple | None = None  # the side panel's histogram: what it was computed for
-        self._hist = None
-        self.histogram_open: bool | None = None  # force the Histogram section open/closed (None: the user's)
         self.objects_panel = ObjectsPanel(app.objects, app.camera, app.messages)
         self.sections: list[Section] = [self.objects_panel]
+        self.menu = MenuBar(app, self)
+        self.images_panel = ImagesPanel(app, self)
+        self.side_panel = SidePanel(app, self, self.images_panel)
+        self.status_bar = StatusBar(app, self)
+        self.input = ViewInput(app, self, self.menu, self.images_panel, self.objects_panel)
         app.pins.on_pinned = self._scroll_to_pin
 
     def add_section(self, section: Section) -> None:
@@ -132,7 +125,7 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self.sections.append(section)
 
     def _scroll_to_pin(self, index: int) -> None:
-        self.scroll_to_pin = index
+        self.side_panel.scroll_to_pin = index
 
     # -- frame --------------------------------------------------------------------------------
     @property
@@ -170,7 +163,7 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self.impl.render(imgui.get_draw_data())
 
     def animating(self) -> bool:
-        return self._dialog is not None
+        return self.menu.animating()
 
     def make_current(self) -> None:
         imgui.set_current_context(self.ctx)
@@ -217,14 +210,14 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         fw, fh = app.surface.framebuffer_size
         s = self.fb_scale
         W, H = fw / s, fh / s  # logical
-        self.menu_bar()
-        self.view_window(fw, fh)
-        self.side_panel(W, H)
-        self.status_bar(W, H)
-        self.error_banner(fw, fh)
-        self.open_popups()
-        self.poll_dialog()
+        self.menu.draw()
+        self.input.view_window(fw, fh)
+        self.side_panel.draw(W, H)
+        self.status_bar.draw(W, H)
+        self.status_bar.error_banner(fw, fh)
+        self.menu.open_popups()
+        self.menu.poll_dialog()
         if not self.io.want_capture_keyboard and not self.io.want_text_input:
-            self.handle_keys()
-        if self._show_help:
-            self.help_window()
+            self.input.handle_keys()
+        if self.menu.show_help:
+            self.menu.help_window()

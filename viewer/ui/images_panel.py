@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from phyir.errors import PhyIRError
 from viewer.compare import METRICS, MODES
-from viewer.ui.widgets import fmt_number, imgui
+from viewer.ui.widgets import colour_bar, fmt_number, imgui
 
 MODE_NAMES = {None: "off", "diff": "difference a - b", "reldiff": "relative (a - b) / (|b| + 0.01)",
               "sqerr": "squared error (a - b)^2", "split": "split view"}
@@ -13,9 +13,15 @@ SPLIT_GRAB_PX = 6.0  # logical px either side of the divide that grab it
 
 
 class ImagesPanel:
-    """Part of :class:`viewer.ui.gui.Gui`: several images and the reference."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale): several images and the reference."""
 
-    def images_section(self) -> None:
+    def __init__(self, app, gui):
+        self.app = app
+        self.gui = gui
+        self._split_drag = False  # the split view's divide is being dragged
+
+    def draw(self) -> None:
+        """The side panel's Images section."""
         app = self.app
         ref = app.images.reference_index
         for k, e in enumerate(app.images):
@@ -58,7 +64,7 @@ class ImagesPanel:
             imgui.same_line()
             if imgui.small_button("auto##extent"):
                 app.comparison.set_extent(None)
-            self.colour_bar(spec.compare.colormap, fmt_number(lo), fmt_number(hi))
+            colour_bar(spec.compare.colormap, fmt_number(lo), fmt_number(hi), self.gui.scale)
 
     def image_keys(self, shift: bool) -> None:
         """[ ] and PageUp/PageDown switch images, Shift+R makes the shown one the reference (again:
@@ -88,7 +94,7 @@ class ImagesPanel:
         if app.comparison.mode != "split" or app.comparison.problem(app.display.layer):
             self._split_drag = False
             return False
-        near = abs(mx - app.comparison.split * w) <= SPLIT_GRAB_PX * self.fb_scale * self.scale
+        near = abs(mx - app.comparison.split * w) <= SPLIT_GRAB_PX * self.gui.fb_scale * self.gui.scale
         if hovered and near or self._split_drag:
             imgui.set_mouse_cursor(imgui.MouseCursor_.resize_ew)
         if activated and near:

@@ -13,12 +13,21 @@ EV_STEP, OFFSET_STEP = 0.5, 0.05  # keys E and O
 
 
 class ViewInput:
-    """Part of :class:`viewer.ui.gui.Gui`: mouse over the view and keys."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale and imgui io): mouse over the view and
+    keys, handed on to the menu bar's actions and the images' and objects' panels."""
+
+    def __init__(self, app, gui, menu, images_panel, objects_panel):
+        self.app = app
+        self.gui = gui
+        self.menu = menu
+        self.images_panel = images_panel
+        self.objects_panel = objects_panel
+        self._dragged = False
 
     def view_window(self, fw: int, fh: int) -> None:
         """An undecorated window over the view: an invisible button takes the mouse."""
         app = self.app
-        s = self.fb_scale
+        s = self.gui.fb_scale
         x, y, w, h = app.view_rect()
         imgui.set_next_window_pos(imgui.ImVec2(x / s, y / s))
         imgui.set_next_window_size(imgui.ImVec2(w / s, h / s))
@@ -28,15 +37,16 @@ class ViewInput:
                  | imgui.WindowFlags_.no_scroll_with_mouse | imgui.WindowFlags_.no_focus_on_appearing)
         imgui.begin("##view", None, flags)
         imgui.invisible_button("view", imgui.ImVec2(max(1.0, w / s), max(1.0, h / s)))
-        io = self.io
+        io = self.gui.io
         mx, my = (io.mouse_pos.x - x / s) * s, (io.mouse_pos.y - y / s) * s  # framebuffer px in the view
         hovered = imgui.is_item_hovered()
         # inserted objects first: the gizmo, click-to-drop and dragging take the mouse from the view
-        took = self.split_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(), mx, w)
+        activated, active = imgui.is_item_activated(), imgui.is_item_active()
+        took = self.images_panel.split_mouse(hovered, activated, active, mx, w)
         took = self.objects_panel.gizmo((x / s, y / s, w / s, h / s), (w, h)) or took
+        moved = bool(io.mouse_delta.x or io.mouse_delta.y)
         took = self.objects_panel.view_mouse(hovered, imgui.is_item_activated(), imgui.is_item_active(),
-                                      imgui.is_item_deactivated(), bool(io.mouse_delta.x or io.mouse_delta.y),
-                                      mx, my) or took
+                                             imgui.is_item_deactivated(), moved, mx, my) or took
         if imgui.is_item_activated():
             self._dragged = took
         if not took and imgui.is_item_active() and imgui.is_mouse_dragging(0, 2.0):
@@ -55,8 +65,8 @@ class ViewInput:
         dl = imgui.get_window_draw_list()
         self._pixel_values(dl, x / s, y / s)
         for m in app.composer.markers():
-            r = 9.0 * self.scale
-            p = imgui.ImVec2(x / s + m.x / s + r + 2, y / s + m.y / s - r - 8 * self.scale)
+            r = 9.0 * self.gui.scale
+            p = imgui.ImVec2(x / s + m.x / s + r + 2, y / s + m.y / s - r - 8 * self.gui.scale)
             dl.add_text(imgui.ImVec2(p.x + 1, p.y + 1), col32(0, 0, 0), m.label)
             dl.add_text(p, col32(*m.colour), m.label)
         imgui.end()
@@ -70,7 +80,7 @@ class ViewInput:
         a = app.doc.shown_arrays.get(app.display.layer)
         if a is None:
             return
-        view, s = app.camera.view, self.fb_scale
+        view, s = app.camera.view, self.gui.fb_scale
         H, W = app.doc.size
         scale_x = a.shape[1] / W  # array pixels per panorama pixel (the probe atlas differs)
         if view.zoom / scale_x / s < VALUES_ZOOM:
@@ -97,16 +107,16 @@ class ViewInput:
 
     # -- keyboard ----------------------------------------------------------------------------------
     def handle_keys(self) -> None:
-        app, io = self.app, self.io
+        app, io = self.app, self.gui.io
         K = imgui.Key
         pressed = imgui.is_key_pressed
         shift = io.key_shift
         handle_object_keys(self.objects_panel, shift, io.key_ctrl)  # viewer.ui.object_keys
         if io.key_ctrl:
             if pressed(K.o):
-                self.open_dialog()
+                self.menu.open_dialog()
             if pressed(K.q):
-                self.request_quit()
+                self.menu.request_quit()
             if pressed(K.r, False) and app.doc.path is not None:
                 app.images.reload()
             if pressed(K.w, False):
@@ -123,7 +133,7 @@ class ViewInput:
         if pressed(K.r, False) and not shift:
             app.display.set_exposure(0.0)
             app.display.set_offset(0.0)
-        self.image_keys(shift)  # [ ] PageUp/PageDown, Shift+R, D (viewer.ui.images_panel)
+        self.images_panel.image_keys(shift)  # [ ] PageUp/PageDown, Shift+R, D (viewer.ui.images_panel)
         if pressed(K.x, False):
             app.display.set_channel(_cycle(CHANNELS, app.display.hdr.channel, -1 if shift else 1))
         if pressed(K.t, False):
@@ -149,9 +159,9 @@ class ViewInput:
             elif app.loader.busy:
                 app.images.cancel()
         if pressed(K.h, False):
-            self._show_help = not self._show_help
+            self.menu.show_help = not self.menu.show_help
         if pressed(K.f12, False):
-            self.save_screenshot()
+            self.menu.save_screenshot()
 
 
 def _cycle(options: tuple[str, ...], current: str, step: int) -> str:

@@ -16,9 +16,24 @@ from viewer.ui.widgets import imgui
 
 
 class MenuBar:
-    """Part of :class:`viewer.ui.gui.Gui`: the menu bar, file dialogs and the help window."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale): the menu bar, file dialogs and the
+    help window (``show_help``; ``help_lines`` keeps each line drawn and where, for tests)."""
 
-    def menu_bar(self) -> None:
+    def __init__(self, app, gui):
+        self.app = app
+        self.gui = gui
+        self._dialog = None          # portable_file_dialogs.open_file in flight
+        self._path_popup = False     # the fallback "open path" popup
+        self._path_text = ""
+        self.show_help = False
+        self.help_lines: list[tuple[str, float, float]] = []
+        self.quit_requested = False
+
+    def animating(self) -> bool:
+        """A file dialog is open: frames go on until it answers."""
+        return self._dialog is not None
+
+    def draw(self) -> None:
         app = self.app
         if not imgui.begin_main_menu_bar():
             return
@@ -81,7 +96,7 @@ class MenuBar:
             imgui.end_menu()
         if imgui.begin_menu("Help"):
             if imgui.menu_item_simple("Keys and mouse", "H"):
-                self._show_help = True
+                self.show_help = True
             imgui.end_menu()
         imgui.end_main_menu_bar()
 
@@ -94,7 +109,7 @@ class MenuBar:
             imgui.text("Panorama (.hdr, .exr, .png, .jpg) or scene file (.exr):")
             if imgui.is_window_appearing():
                 imgui.set_keyboard_focus_here()
-            imgui.set_next_item_width(520 * self.scale)
+            imgui.set_next_item_width(520 * self.gui.scale)
             enter, self._path_text = imgui.input_text("##path", self._path_text,
                                                       imgui.InputTextFlags_.enter_returns_true)
             if (imgui.button("Open") or enter) and self._path_text.strip():
@@ -163,7 +178,7 @@ class MenuBar:
         """Every key and mouse action, in sections laid out in two columns, the window sized to them
         (at 1x it fits a 1394x556 window) and centred on the view; ``help_lines`` keeps each line
         drawn and where (screen px), for tests."""
-        s, sc = self.fb_scale, self.scale
+        s, sc = self.gui.fb_scale, self.gui.scale
         x, y, w, h = self.app.view_rect()
         imgui.set_next_window_pos(imgui.ImVec2((x + w / 2) / s, (y + h / 2) / s), imgui.Cond_.always,
                                   imgui.ImVec2(0.5, 0.5))
@@ -189,7 +204,7 @@ class MenuBar:
                 imgui.end_group()
         imgui.end()
         if not keep:
-            self._show_help = False
+            self.show_help = False
 
     def _help_line(self, text: str, disabled: bool = False) -> None:
         p = imgui.get_cursor_screen_pos()

@@ -3,7 +3,6 @@ read-out under the mouse, the pinned probes, the inserted objects and the messag
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 
@@ -12,17 +11,39 @@ import torch
 
 from phyir import pano
 from viewer.layers import KEYS, LAYERS, SPECS, histogram
-from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS, colormap_lut
-from viewer.ui.widgets import FLAGS_FIXED, LEVEL_COLOURS, PANEL_WIDTH, col32, fmt_number, fmt_value, imgui
+from viewer.renderer import CHANNELS, COLORMAPS, TONEMAPS
+from viewer.ui.widgets import (
+    FLAGS_FIXED,
+    LEVEL_COLOURS,
+    PANEL_WIDTH,
+    col32,
+    colour_bar,
+    fmt_number,
+    fmt_value,
+    imgui,
+)
 
 
 class SidePanel:
-    """Part of :class:`viewer.ui.gui.Gui`: the panel right of the view."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale and sections): the panel right of the
+    view.  ``histogram_open`` forces the Histogram section open or closed (None: the user's);
+    ``probe_rects`` keeps where each probe image was drawn (screen px), for tests."""
 
-    def side_panel(self, W: float, H: float) -> None:
+    def __init__(self, app, gui, images_panel):
+        self.app = app
+        self.gui = gui
+        self.images_panel = images_panel
+        self.histogram_open: bool | None = None
+        self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}
+        self.scroll_to_pin: int | None = None  # a new pin: its probe is brought into view
+        self._images_counted: int | None = None
+        self._hist_key: tuple | None = None  # the histogram: what it was computed for
+        self._hist = None
+
+    def draw(self, W: float, H: float) -> None:
         app = self.app
-        top = self.bar_height()
-        pw = PANEL_WIDTH * self.scale
+        top = self.gui.bar_height()
+        pw = PANEL_WIDTH * self.gui.scale
         imgui.set_next_window_pos(imgui.ImVec2(W - pw, top))
         imgui.set_next_window_size(imgui.ImVec2(pw, H - 2 * top))
         imgui.begin("##panel", None, FLAGS_FIXED)
@@ -31,16 +52,16 @@ class SidePanel:
             frac, text = app.loader.progress or (None, "")
             if frac is None:  # indeterminate: a moving bar
                 frac = (time.monotonic() * 0.5) % 1.0
-            imgui.progress_bar(frac, imgui.ImVec2(-60 * self.scale, 0), text or "working")
+            imgui.progress_bar(frac, imgui.ImVec2(-60 * self.gui.scale, 0), text or "working")
             imgui.same_line()
             if imgui.button("Cancel"):
                 app.images.cancel()
         n = len(app.images)
-        if n != getattr(self, "_images_counted", None):  # shut for one image (room for the layers),
+        if n != self._images_counted:  # shut for one image (room for the layers),
             imgui.set_next_item_open(n > 1)  # opened when a second one arrives
             self._images_counted = n
         if imgui.collapsing_header(f"Images ({n})###images"):
-            self.images_section()
+            self.images_panel.draw()
         if imgui.collapsing_header("Layers", imgui.TreeNodeFlags_.default_open):
             self._layers()
         if imgui.collapsing_header("Display", imgui.TreeNodeFlags_.default_open):
@@ -55,7 +76,7 @@ class SidePanel:
             self._readout()
         if imgui.collapsing_header(f"Probes ({len(app.pins)})###probes", imgui.TreeNodeFlags_.default_open):
             self._probes()
-        for section in self.sections:  # the objects' panel and any added (Gui.add_section)
+        for section in self.gui.sections:  # the objects' panel and any added (Gui.add_section)
             flags = imgui.TreeNodeFlags_.default_open if section.default_open else 0
             if imgui.collapsing_header(section.title, flags):
                 section.draw()
@@ -77,7 +98,7 @@ class SidePanel:
                 app.display.set_source(True)
         for k, (name, key) in enumerate(zip(LAYERS, KEYS)):
             if k % 2:
-                imgui.same_line(170 * self.scale)
+                imgui.same_line(170 * self.gui.scale)
             present = name in avail
             if not present:
                 imgui.begin_disabled()
@@ -106,7 +127,7 @@ class SidePanel:
             self._channel_combo()
             if app.display.hdr.tonemap == "false":
                 lo, hi = app.display.hdr.false_range
-                self.colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV")
+                colour_bar("turbo", f"{lo:+.0f} EV", f"{hi:+.0f} EV", self.gui.scale)
         elif spec.kind == "colour":
             self._channel_combo()
         elif spec.kind == "scalar":
@@ -122,7 +143,7 @@ class SidePanel:
             imgui.same_line()
             if imgui.small_button("auto"):
                 app.display.set_range(None)
-            self.colour_bar(sd.colormap, fmt_number(lo) + spec.unit, fmt_number(hi) + spec.unit)
+            colour_bar(sd.colormap, fmt_number(lo) + spec.unit, fmt_number(hi) + spec.unit, self.gui.scale)
         else:
             imgui.push_text_wrap_pos(0)
             note = "normal n shown as 0.5 n + 0.5 (x red, y green, z blue)" if spec.kind == "normal" \
@@ -139,13 +160,13 @@ class SidePanel:
             return
         spec = SPECS[app.display.layer]
         key = (id(arrays[app.display.layer]), app.display.layer, app.display.hdr.channel)
-        if getattr(self, "_hist_key", None) != key:
+        if self._hist_key != key:
             self._hist_key, self._hist = key, histogram(arrays[app.display.layer], spec.kind, key[2])
         if self._hist is None:
             imgui.text_disabled("no histogram for normals")
             return
         counts, lo, hi, unit = self._hist
-        imgui.plot_histogram("##hist", counts, graph_size=imgui.ImVec2(-1, 70 * self.scale))
+        imgui.plot_histogram("##hist", counts, graph_size=imgui.ImVec2(-1, 70 * self.gui.scale))
         imgui.text(f"{unit}: {fmt_number(lo)} .. {fmt_number(hi)}")
         if spec.kind == "hdr" and app.display.hdr.tonemap != "false":
             ev = app.display.hdr.exposure
@@ -160,21 +181,6 @@ class SidePanel:
         ch, i = imgui.combo("channel (X)", CHANNELS.index(app.display.hdr.channel), names)
         if ch:
             app.display.set_channel(CHANNELS[i])
-
-    def colour_bar(self, name: str, lo: str, hi: str) -> None:
-        lut = _bar_lut(name)
-        dl = imgui.get_window_draw_list()
-        p = imgui.get_cursor_screen_pos()
-        w = imgui.get_content_region_avail().x
-        h = 10 * self.scale
-        n = len(lut)
-        for k, c in enumerate(lut):
-            x0, x1 = p.x + w * k / n, p.x + w * (k + 1) / n + 1
-            dl.add_rect_filled(imgui.ImVec2(x0, p.y), imgui.ImVec2(x1, p.y + h), col32(*c))
-        imgui.dummy(imgui.ImVec2(w, h))
-        imgui.text(lo)
-        imgui.same_line(max(0.0, w - imgui.calc_text_size(hi).x))
-        imgui.text(hi)
 
     def _view_controls(self) -> None:
         app = self.app
@@ -269,8 +275,8 @@ class SidePanel:
                 imgui.text_disabled("no light probes yet" + (" (computing...)" if app.loader.busy else ""))
             else:
                 h, w = (pin.probe if pin.probe is not None else pin.probe_gt).shape[1:]
-                cell = (avail_w - 8 * self.scale * (len(pairs) - 1)) / len(pairs)
-                f = max(1, int(cell * self.fb_scale // w))  # integer texel size: texels stay square
+                cell = (avail_w - 8 * self.gui.scale * (len(pairs) - 1)) / len(pairs)
+                f = max(1, int(cell * self.gui.fb_scale // w))  # integer texel size: texels stay square
                 size = (w * f, h * f)
                 for n, (which, label) in enumerate(pairs):
                     if n:
@@ -282,8 +288,8 @@ class SidePanel:
                     if tex is None:
                         imgui.text_disabled("-")
                     else:
-                        imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(size[0] / self.fb_scale,
-                                                                               size[1] / self.fb_scale),
+                        imgui.image(imgui.ImTextureRef(tex.glo), imgui.ImVec2(size[0] / self.gui.fb_scale,
+                                                                               size[1] / self.gui.fb_scale),
                                     imgui.ImVec2(0, 1), imgui.ImVec2(1, 0))
                         mn, mx = imgui.get_item_rect_min(), imgui.get_item_rect_max()
                         self.probe_rects[(k, which)] = (mn.x, mn.y, mx.x, mx.y)
@@ -310,8 +316,3 @@ class SidePanel:
         if remove is not None:
             app.pins.unpin(remove)
 
-
-@functools.cache
-def _bar_lut(name: str) -> np.ndarray:
-    """The colour bar's 64 colours of colour map ``name`` (computed once)."""
-    return colormap_lut(name, 64)

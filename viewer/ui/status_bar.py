@@ -8,14 +8,20 @@ from viewer.ui.widgets import ERROR_BG, FLAGS_FIXED, LEVEL_COLOURS, fmt_value, i
 
 
 class StatusBar:
-    """Part of :class:`viewer.ui.gui.Gui`: the bar under the view and the error banner over it."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale): the bar under the view and the error
+    banner over it."""
 
-    def status_bar(self, W: float, H: float) -> None:
+    def __init__(self, app, gui):
+        self.app = app
+        self.gui = gui
+
+    def draw(self, W: float, H: float) -> None:
         app = self.app
-        bh = self.bar_height()
+        bh = self.gui.bar_height()
         imgui.set_next_window_pos(imgui.ImVec2(0, H - bh))
         imgui.set_next_window_size(imgui.ImVec2(W, bh))
-        imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(6 * self.scale, 3 * self.scale))
+        sc = self.gui.scale
+        imgui.push_style_var(imgui.StyleVar_.window_padding, imgui.ImVec2(6 * sc, 3 * sc))
         imgui.begin("##status", None, FLAGS_FIXED | imgui.WindowFlags_.no_scrollbar)
         last = app.messages[-1] if app.messages else None
         imgui.text(status_text(app))
@@ -33,10 +39,10 @@ class StatusBar:
         app = self.app
         if not app.messages.error:
             return
-        s = self.fb_scale
+        s = self.gui.fb_scale
         x, y, w, _ = app.view_rect()
-        imgui.set_next_window_pos(imgui.ImVec2(x / s + 10 * self.scale, y / s + 10 * self.scale))
-        imgui.set_next_window_size(imgui.ImVec2(w / s - 20 * self.scale, 0))
+        imgui.set_next_window_pos(imgui.ImVec2(x / s + 10 * self.gui.scale, y / s + 10 * self.gui.scale))
+        imgui.set_next_window_size(imgui.ImVec2(w / s - 20 * self.gui.scale, 0))
         imgui.push_style_color(imgui.Col_.window_bg, imgui.ImVec4(*ERROR_BG))
         flags = FLAGS_FIXED | imgui.WindowFlags_.always_auto_resize
         flags |= imgui.WindowFlags_.no_focus_on_appearing

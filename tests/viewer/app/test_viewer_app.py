@@ -103,7 +103,7 @@ def test_pinned_probe_panel_shows_the_probe(app):
     r = float(sc.depth[0, 40, 100])
     assert np.allclose(pin.point / np.linalg.norm(pin.point), pin.direction)
     assert abs(np.dot(pin.position - pin.point, n) - 0.05) < 0.01 * 0.05 + abs(r) * 1e-3
-    x0, y0, x1, y1 = app.gui.probe_rects[(0, "pred")]
+    x0, y0, x1, y1 = app.gui.side_panel.probe_rects[(0, "pred")]
     h, w = want.shape[1:]
     s = app.surface.scale
     exp_rgb = linear_to_srgb(want * 2.0**-2) * 255
@@ -142,7 +142,7 @@ def test_ground_truth_probes_side_by_side(app):
     s = app.surface.scale
     means = {}
     for which in ("pred", "gt"):
-        x0, y0, x1, y1 = app.gui.probe_rects[(0, which)]
+        x0, y0, x1, y1 = app.gui.side_panel.probe_rects[(0, which)]
         means[which] = img[int(y0 * s) + 2 : int(y1 * s) - 2, int(x0 * s) + 2 : int(x1 * s) - 2].mean()
     assert means["pred"] > means["gt"] + 0.5  # the prediction is 10% brighter
     app.display.set_source(True)
@@ -308,19 +308,20 @@ def test_single_channel_views_show_one_channel_or_the_luminance_as_grey(app):
     with pytest.raises(PhyIRError, match="unknown channel"):
         app.display.set_channel("alpha")
     # the side panel's histogram of the shown layer (log2 for HDR), drawn for each kind of layer
-    app.gui.histogram_open = True
+    app.gui.side_panel.histogram_open = True
     try:
         for layer in ("image", "albedo", "depth", "normal"):
             app.display.set_layer(layer)
             app.frame()
             want = "normal" if layer == "normal" else layer
-            assert app.gui._hist_key[1] == want and (app.gui._hist is None) == (layer == "normal")
+            side = app.gui.side_panel
+            assert side._hist_key[1] == want and (side._hist is None) == (layer == "normal")
         app.display.set_layer("image")
         app.frame()
-        counts, lo, hi, unit = app.gui._hist
+        counts, lo, hi, unit = app.gui.side_panel._hist
         assert unit.startswith("log2") and counts.sum() > 0.99 * np.prod(app.doc.size) and lo < hi
     finally:
-        app.gui.histogram_open = None
+        app.gui.side_panel.histogram_open = None
 
 
 def test_a_watched_file_is_reloaded_when_it_changes_on_disk(app, tmp_path):

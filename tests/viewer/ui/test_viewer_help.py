@@ -38,7 +38,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
     press(app, imgui.Key.h)
     for _ in range(3):  # an auto-resized window takes a frame or two to settle
         app.frame()
-    assert app.gui._show_help
+    assert app.gui.menu.show_help
     win = imgui_window(app, "Keys and mouse")
     x0, y0 = win.pos.x, win.pos.y
     x1, y1 = x0 + win.size.x, y0 + win.size.y
@@ -47,7 +47,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
     right, bottom = x1 - win.window_padding.x, y1 - win.window_padding.y / 2
     assert win.content_size.x <= win.size.x - 2 * win.window_padding.x, "the help is cut at the right"
     assert not win.scrollbar_y, "the help is cut at the bottom"
-    lines = app.gui.help_lines
+    lines = app.gui.menu.help_lines
     assert len(lines) > 30
     for text, x, y in lines:
         size = imgui.calc_text_size(text)
@@ -62,7 +62,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
                 and texts[i + 1] == k.help and k.help.strip()]
         assert rows, f"the object key {label} is not in the help"
     press(app, imgui.Key.h)
-    assert not app.gui._show_help
+    assert not app.gui.menu.show_help
 
 
 def test_object_keys_do_what_the_help_says(app):

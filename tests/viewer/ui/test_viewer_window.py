@@ -100,7 +100,7 @@ def test_window_app_layers_probe_views(app, scene_file):
     assert pin.probe is not None and pin.position is not None
     app.frame()
     shot = app.screenshot().astype(float)
-    x0, y0, x1, y1 = app.gui.probe_rects[(0, "pred")]
+    x0, y0, x1, y1 = app.gui.side_panel.probe_rects[(0, "pred")]
     s = app.surface.scale
     panel = shot[int(y0 * s) : int(y1 * s), int(x0 * s) : int(x1 * s)]
     assert panel.std() > 3  # the probe's sky gradient is visible
