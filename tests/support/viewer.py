@@ -20,7 +20,7 @@ def box_room_app(size: tuple[int, int] = (900, 520)):
     app = App(size, headless=True, recent=False, render=cheap_render)
     try:
         app.open(box_room(64, 128))
-        assert app.wait_idle(60) and app.error is None
+        assert app.wait_idle(60) and app.messages.error is None
     except BaseException:
         app.close()
         raise

@@ -1,16 +1,38 @@
-"""The App's views and mouse: equirect or perspective, fit and 1:1, and screen <-> panorama
-positions (framebuffer pixels relative to the view's top-left)."""
+"""The view and the mouse (:class:`Camera`): equirect or perspective, fit and 1:1, and screen <->
+panorama positions (framebuffer pixels relative to the view's top-left)."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
 from phyir.errors import PhyIRError
+from phyir.insert.views import EquirectView, PerspectiveView
+from viewer.app.images import ImageList
+from viewer.app.pins import Pins
 from viewer.probes import Pin
 
 
 class Camera:
-    """Part of :class:`viewer.app.App`: the view and what the mouse does to it."""
+    """Owns both views (``views``; ``view_kind`` says which one is shown), shared by all images;
+    ``view_size()`` is the view's (w, h) in framebuffer pixels.  A click pins a probe (``pins``)."""
+
+    def __init__(self, images: ImageList, pins: Pins, view_size: Callable[[], tuple[int, int]]):
+        self.images = images
+        self.pins = pins
+        self.view_size = view_size
+        self.views = {"equirect": EquirectView(), "perspective": PerspectiveView()}
+        self.view_kind = "equirect"
+
+    @property
+    def view(self) -> EquirectView | PerspectiveView:
+        return self.views[self.view_kind]
+
+    @property
+    def hover(self) -> tuple[float, float] | None:
+        """The panorama (u, v) under the mouse, None when it is elsewhere."""
+        return self.images.doc.hover
 
     def set_view(self, kind: str | None = None, **params) -> None:
         """Switch view ("equirect"/"perspective") and/or set its parameters (equirect: center, zoom;
@@ -25,8 +47,9 @@ class Camera:
             setattr(self.view, k, val)
 
     def fit(self) -> None:
-        if self.size is not None:
-            self.views["equirect"].fit(self.view_size(), self.size)
+        size = self.images.doc.size
+        if size is not None:
+            self.views["equirect"].fit(self.view_size(), size)
 
     def one_to_one(self) -> None:
         self.views["equirect"].zoom_about(1.0 / self.views["equirect"].zoom, self.view_size())
@@ -34,10 +57,11 @@ class Camera:
     # -- mouse (positions in framebuffer pixels relative to the view's top-left) ---------------
     def screen_to_uv(self, x: float, y: float) -> tuple[float, float] | None:
         """Panorama coordinates under a view position, None outside the panorama."""
-        if self.size is None:
+        size = self.images.doc.size
+        if size is None:
             return None
-        H, W = self.size
-        u, v = self.view.screen_to_uv(np.float64(x), np.float64(y), self.view_size(), self.size)
+        H, W = size
+        u, v = self.view.screen_to_uv(np.float64(x), np.float64(y), self.view_size(), size)
         u, v = float(u), float(v)
         if not (0 <= v < H) or (self.view_kind == "equirect" and not 0 <= u < W):
             return None
@@ -57,7 +81,7 @@ class Camera:
 
     def click(self, x: float, y: float) -> Pin | None:
         uv = self.screen_to_uv(x, y)
-        return None if uv is None else self.pin_probe(*uv)
+        return None if uv is None else self.pins.pin_probe(*uv)
 
     def hover_at(self, x: float | None, y: float | None) -> None:
-        self.hover = None if x is None else self.screen_to_uv(x, y)
+        self.images.doc.hover = None if x is None else self.screen_to_uv(x, y)

@@ -180,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(3):  # imgui lays windows out over a couple of frames
             app.frame()
         app.screenshot(args.screenshot)
-        if app.error:
-            print(f"phyir-view: {app.error}", file=sys.stderr)
+        if app.messages.error:
+            print(f"phyir-view: {app.messages.error}", file=sys.stderr)
             return 2
         return 0
     except PhyIRError as e:
@@ -222,74 +222,74 @@ def open_images(app: App, args) -> None:
     """The other images of the command line (read once the first is in) and the reference: the
     --reference file, else the second image when a comparison is asked for."""
     for p in args.path[1:]:
-        app.queue_image(p)
+        app.images.queue(p)
     if args.reference:
-        app.set_reference(app.images.index(app.queue_image(args.reference)))
+        app.images.set_reference(app.images.index(app.images.queue(args.reference)))
     elif _compare_mode(args) and len(app.images) > 1:
-        app.set_reference(1)
+        app.images.set_reference(1)
 
 
 def _apply_compare(app: App, args, wait: bool) -> None:
     mode = _compare_mode(args)
     if mode is None:
         return
-    if app.reference is None:  # its file could not be read: app.error says why
-        raise PhyIRError(f"--reference {args.reference or args.path[1]}: {app.error or 'not open'}")
-    if wait and app.compare_problem(app.layer):
-        raise PhyIRError(f"--compare {mode}: {app.compare_problem(app.layer)}")
-    app.set_compare(mode)
+    if app.images.reference is None:  # its file could not be read: app.messages.error says why
+        raise PhyIRError(f"--reference {args.reference or args.path[1]}: {app.messages.error or 'not open'}")
+    if wait and app.comparison.problem(app.display.layer):
+        raise PhyIRError(f"--compare {mode}: {app.comparison.problem(app.display.layer)}")
+    app.comparison.set_mode(mode)
     if args.split is not None:
-        app.set_split(args.split)
+        app.comparison.set_split(args.split)
 
 
 def apply_args(app: App, args, wait: bool) -> None:
     if args.layer:
-        if wait and args.layer not in app.available():
-            raise PhyIRError(f"{app.name}: layer {args.layer!r} is not available "
-                             f"(have: {', '.join(app.available()) or 'none'})")
-        app.set_layer(args.layer)
+        if wait and args.layer not in app.doc.available():
+            raise PhyIRError(f"{app.doc.name}: layer {args.layer!r} is not available "
+                             f"(have: {', '.join(app.doc.available()) or 'none'})")
+        app.display.set_layer(args.layer)
     if args.view:
-        app.set_view(args.view)
+        app.camera.set_view(args.view)
     persp = {k: v for k, v in (("fov", args.fov), ("yaw", args.yaw and math.radians(args.yaw)),
                                 ("pitch", args.pitch and math.radians(args.pitch))) if v is not None}
     if persp:
-        app.views["perspective"].update(**persp)
+        app.camera.views["perspective"].update(**persp)
     if wait and (args.zoom or args.center):
-        eq = app.views["equirect"]
+        eq = app.camera.views["equirect"]
         if args.zoom:
             eq.zoom_about(args.zoom / eq.zoom, app.view_size())
-        if args.center and app.size is not None:
-            H, W = app.size
+        if args.center and app.doc.size is not None:
+            H, W = app.doc.size
             if not (0 <= args.center[0] <= W and 0 <= args.center[1] <= H):
                 raise PhyIRError(f"--center {args.center[0]:g},{args.center[1]:g}: outside the {W}x{H} "
                                  "panorama")
             eq.center = args.center
     if args.show:
-        app.set_source(args.show == "truth")
+        app.display.set_source(args.show == "truth")
     _apply_compare(app, args, wait)
     if args.exposure is not None:
-        app.set_exposure(args.exposure)
+        app.display.set_exposure(args.exposure)
     if args.tonemap:
-        app.set_tonemap(args.tonemap)
+        app.display.set_tonemap(args.tonemap)
     if args.channel:
-        app.set_channel(args.channel)
-    app.watch = bool(args.watch)
+        app.display.set_channel(args.channel)
+    app.images.watch = bool(args.watch)
     if args.histogram and app.gui is not None:
-        app.gui.histogram_open = True
+        app.gui.side_panel.histogram_open = True
     if args.colormap:
-        for name in app.scalar:
-            app.set_colormap(args.colormap, name)
-    if wait and app.size is not None:  # (no size: the file failed to open, app.error says why)
-        H, W = app.size
+        for name in app.display.scalar:
+            app.display.set_colormap(args.colormap, name)
+    if wait and app.doc.size is not None:  # (no size: the file failed to open, app.messages.error says why)
+        H, W = app.doc.size
         for u, v in args.probe:
             if not (0 <= u < W and 0 <= v < H):
                 raise PhyIRError(f"--probe {u:g},{v:g}: outside the {W}x{H} panorama "
                                  f"(columns 0..{W - 1}, rows 0..{H - 1})")
-            app.pin_probe(u, v)
+            app.pins.pin_probe(u, v)
     if wait:
-        cli_objects.add_objects(app, args.objects)
+        cli_objects.add_objects(app.objects, args.objects)
     elif args.objects:
-        app.queue_objects(args.objects)
+        app.objects.queue(args.objects)
 
 
 def _bench(app: App, args) -> int:
@@ -300,21 +300,22 @@ def _bench(app: App, args) -> int:
     app.sync_parts = False
     if ok:
         apply_args(app, args, wait=True)  # the state asked for (layer, view, objects) is what is timed
-    during, n_during, parts = app.job_max_frame, app.job_frames, app.job_max_parts
+    during, n_during, parts = app.loader.job_max_frame, app.loader.job_frames, app.loader.job_max_parts
     for _ in range(3):
         app.frame()
-    ev = app.hdr.exposure
+    ev = app.display.hdr.exposure
     redrawn = []
     for k in range(30):
-        app.set_exposure(ev + 1e-3 * (k % 2))
+        app.display.set_exposure(ev + 1e-3 * (k % 2))
         redrawn.append(app.frame())
-    app.set_exposure(ev)
+    app.display.set_exposure(ev)
     app.frame()
     cached = sorted(app.frame() for _ in range(30))
     redrawn.sort()
     x, y, w, h = app.view_rect()
     passes = sorted(_time_view_pass(app) for _ in range(30))
-    print(f"{app.name}: view {w}x{h} px, panorama {app.size[1]}x{app.size[0]}, layer {app.layer}, "
+    H, W = app.doc.size
+    print(f"{app.doc.name}: view {w}x{h} px, panorama {W}x{H}, layer {app.display.layer}, "
           f"GL {app.ctx.info['GL_RENDERER']}")
     print(f"view pass alone: median {_median_ms(passes):.1f} ms, max {1000 * passes[-1]:.1f} ms")
     print(f"whole frame redrawing the view: median {_median_ms(redrawn):.1f} ms, "
@@ -322,7 +323,7 @@ def _bench(app: App, args) -> int:
     print(f"whole frame reusing the view (UI changes only): median {_median_ms(cached):.1f} ms, "
           f"max {1000 * cached[-1]:.1f} ms")
     print(f"while loading/inferring: longest frame {1000 * during:.1f} ms over {n_during} frames "
-          f"(job {app.timings.get('job', float('nan')):.1f} s: {_fmt_timings(app.timings)})")
+          f"(job {app.doc.timings.get('job', float('nan')):.1f} s: {_fmt_timings(app.doc.timings)})")
     print("  its parts, wall (UI-thread CPU) ms: " +
           ", ".join(f"{k} {1000 * w:.1f} ({1000 * c:.1f})" for k, (w, c) in parts.items()))
     if app.objects.objects:
@@ -342,14 +343,15 @@ def bench_drag(app: App, frames: int = 60, moves: bool = True) -> None:
     objs = app.objects.objects
     centre = np.mean([o.bounding_sphere()[0] for o in objs], axis=0)
     lon, lat = pano.dir_to_lonlat(torch.as_tensor(centre, dtype=torch.float64))
-    app.set_view("perspective")
-    app.views["perspective"].update(yaw=float(lon), pitch=float(lat))
+    app.camera.set_view("perspective")
+    app.camera.views["perspective"].update(yaw=float(lon), pitch=float(lat))
     for _ in range(3):
         app.frame()
     _until_refined(app)  # the full-quality picture of the view before the drag, as a user sees it
-    H, W = app.size
+    H, W = app.doc.size
     u, v, _ = pano.points_to_uv(torch.as_tensor(objs[0].bounding_sphere()[0]), H, W)
-    x, y, front = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+    view = app.camera.view
+    x, y, front = view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), (H, W))
     if not (front and app.objects.begin_drag(float(x), float(y))):
         print("dragging: the first object is not under the mouse in the perspective view; skipped")
         return
@@ -377,10 +379,10 @@ def bench_drag(app: App, frames: int = 60, moves: bool = True) -> None:
 def bench_moves(app: App, frames: int) -> None:
     """Whole frames while the camera turns (yaw to and fro by 10 degrees) and while the exposure is
     dragged (to and fro by 2 EV) with the objects in view: both redraw the objects every frame."""
-    view = app.views["perspective"]
-    yaw, ev = view.yaw, app.hdr.exposure
+    view = app.camera.views["perspective"]
+    yaw, ev = view.yaw, app.display.hdr.exposure
     moves = {"turning the view": lambda t: view.update(yaw=yaw + math.radians(10) * math.sin(t)),
-             "dragging the exposure": lambda t: app.set_exposure(ev + 2 * math.sin(t))}
+             "dragging the exposure": lambda t: app.display.set_exposure(ev + 2 * math.sin(t))}
     for name, move in moves.items():
         times = []
         for k in range(1, frames + 1):
@@ -404,7 +406,7 @@ def _until_refined(app: App) -> tuple[list[float], float]:
 
 @gl_current
 def _time_view_pass(app: App) -> float:
-    target, spec = app.surface.target(), app.frame_spec()
+    target, spec = app.surface.target(), app.composer.frame_spec()
     fw, fh = app.surface.framebuffer_size
     app.ctx.finish()
     t0 = time.perf_counter()

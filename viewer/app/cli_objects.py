@@ -85,25 +85,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="diffuse (default), matte-silver, mirror-silver or B,B,B,R,M")
 
 
-def add_objects(app, specs: list[ObjectSpec]) -> None:
-    """Insert ``specs`` into the app's scene (it has depth and probes); one-line errors naming the option."""
+def add_objects(objects, specs: list[ObjectSpec]) -> None:
+    """Insert ``specs`` into the scene of ``objects`` (a :class:`viewer.app.objects.InsertedObjects`;
+    the scene has depth and probes); one-line errors naming the option."""
     from phyir.insert import views
     from phyir.insert.objects import parse_material
     from phyir.insert.placement import camera_inside, ceiling_warning, on_ceiling
 
-    if specs and not app.objects.sync():
-        raise PhyIRError(f"{app.name}: --object needs the scene's depth and probes "
+    if specs and not objects.sync():
+        raise PhyIRError(f"{objects.scene_name}: --object needs the scene's depth and probes "
                          "(the model did not run: drop --no-model, or open a predicted scene)")
     for s in specs:
         material = parse_material(s.material)
-        obj = app.objects.add(s.spec, material=material, scale=s.scale)
+        obj = objects.add(s.spec, material=material, scale=s.scale)
         if s.at is not None or s.position is not None:
-            H, W = app.objects.scene().size
+            H, W = objects.scene().size
             at = options.to_pixels(s.at, W, H) if s.at is not None else None
-            views.place_object(obj, app.objects.scene(), at=at, position=s.position,
-                               log=lambda text: app.note("warning", text))
+            views.place_object(obj, objects.scene(), at=at, position=s.position,
+                               log=lambda text: objects.note("warning", text))
             if at is not None and on_ceiling(obj.support):
-                app.note("warning", ceiling_warning(f"--object {s.spec} --at {s.at[0]:g},{s.at[1]:g}", H))
+                objects.note("warning", ceiling_warning(f"--object {s.spec} --at {s.at[0]:g},{s.at[1]:g}", H))
         problem = camera_inside([obj])
         if problem:
             raise PhyIRError(f"--object {s.spec}: {problem}")

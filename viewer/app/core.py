@@ -1,18 +1,22 @@
 """``phyir-view``: the interactive panorama inspector.
 
-:class:`App` holds the viewer's state and is what the UI, the command line and the tests drive: the
-imgui panels (``viewer/ui/``) call the same methods a script does (``open``, ``set_layer``,
-``pin_probe``, ``set_view``, ...), then ``frame()`` draws and ``screenshot()`` reads the result.
-All GL work happens on the thread that created the App; loading, inference and re-rendering run in
-``viewer.worker``.  The App's code is split by concern: state and lifecycle here, and the parts it
-is made of: the open images (``images``) and the comparison with a reference (``comparison``),
-file I/O (``files``), worker events (``events``), what is displayed (``display``), the view and
-mouse (``camera``), pinned probes (``pins``), inserted objects (``objects``) and the control socket
-(``remote``).
+:class:`App` is what the UI, the command line and the tests drive.  It owns the window (or headless
+surface), the renderer, the worker and the frame loop, and a few collaborators, each with its own
+state: ``images`` (the open images and their documents, the reference, which one the worker loads
+next: ``viewer.app.images``), ``loader`` (the bridge to the worker: ``viewer.app.loader``, its events
+applied by ``viewer.app.events``), ``display`` (layer, exposure, tone and colour maps),
+``camera`` (the views and the mouse), ``pins`` (pinned probes), ``comparison`` (with the reference),
+``objects`` (inserted objects and their renderer), ``composer`` (what the view draws), ``messages``,
+``remote`` (the control socket) and ``gui`` (the imgui interface, ``viewer.ui``).  The panels call
+the same methods a script does (``images.open``, ``display.set_layer``, ``pins.pin_probe``,
+``camera.set_view``, ...), then ``frame()`` draws and ``screenshot()`` reads the result.  All GL
+work happens on the thread that created the App; loading, inference and re-rendering run in
+``viewer.worker``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 
@@ -22,27 +26,27 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 
 import moderngl
 import numpy as np
 
-from phyir.insert.views import EquirectView, PerspectiveView
 from phyir.scene import PanoScene
 from viewer.app.camera import Camera
-from viewer.app.common import BACKGROUND, Message, ScalarDisplay, gl_current
+from viewer.app.common import BACKGROUND, Messages, gl_current
 from viewer.app.comparison import Comparison
+from viewer.app.composer import ViewComposer
 from viewer.app.display import DisplaySettings
+from viewer.app.document import Document
 from viewer.app.events import WorkerEvents
-from viewer.app.files import FileActions
 from viewer.app.images import ImageList
+from viewer.app.loader import Loader
 from viewer.app.objects import InsertedObjects
 from viewer.app.pins import Pins
-from viewer.app.remote import Remote
+from viewer.app.remote import RemoteControl
 from viewer.gl import window as surfaces
-from viewer.layers import LAYERS, SPECS
-from viewer.probes import Pin
 from viewer.recent import RecentFiles
-from viewer.renderer import Display, Renderer
+from viewer.renderer import Renderer
 from viewer.worker import Worker, preload
 
 # GIL switch interval while an App lives (see App.__init__): 0.5 ms left frames of 135-192 ms while
@@ -50,8 +54,7 @@ from viewer.worker import Worker, preload
 SWITCH_INTERVAL_S = 0.0001
 
 
-class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Camera, Pins, InsertedObjects,
-          Remote):
+class App:
     """The viewer.  ``headless=True`` renders through a standalone EGL context (no window/input);
     ``ui=False`` draws only the view (no imgui).  ``predict``/``render`` replace ``phyir.predict``
     and ``phyir.shading.render.render_scene`` (tests); ``recent=False`` disables the recent-files list."""
@@ -75,58 +78,21 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         with self.surface.current():
             self.renderer.warm_up(self.surface.target())
         self.title = title
+        self.gui = None
         self.last_capture: np.ndarray | None = None
-        self.watch = False  # reload the file when it changes on disk (phyir-view --watch)
-        self._watch_stamp: tuple | None = None  # (mtime, size) of the file as loaded
-        self._watch_last = 0.0
-        self._opening = None  # the file being opened (viewer.app.files), until it loads or fails
+        self.quit_requested = False  # the ``quit`` command: the loops end
         self._screenshot_request: str | None = None  # F12 / the menu: saved after the frame
         model_kw = {k: v for k, v in (("weights", weights), ("device", device)) if v is not None}
         preload()  # what jobs would import in the worker, holding the GIL the UI needs
-        self.worker = Worker(wake=getattr(self.surface, "wake", None), predict=predict, render=render,
-                             threads=threads, predict_kwargs=model_kw)
-        self.run_model = run_model
+        worker = Worker(wake=getattr(self.surface, "wake", None), predict=predict, render=render,
+                        threads=threads, predict_kwargs=model_kw)
         self.recent = (RecentFiles() if recent is None or recent is True else recent) or None
-        # what is shown
-        self.path: str | None = None
-        self.name = ""
-        self.scene: PanoScene | None = None
-        self.confidence: float | None = None  # geometry confidence of the scene (status bar)
-        self.arrays: dict[str, np.ndarray] = {}
-        self.gt: PanoScene | None = None
-        self.gt_arrays: dict[str, np.ndarray] = {}
-        self.show_gt = False
-        self.layer = "image"
-        self.hdr = Display()
-        self.scalar = {n: ScalarDisplay(s.colormap, s.range or (0.0, 1.0), s.range is None)
-                       for n, s in SPECS.items() if s.kind == "scalar"}
-        self.views = {"equirect": EquirectView(), "perspective": PerspectiveView()}
-        self.view_kind = "equirect"
-        self.pins: list[Pin] = []
-        self.hover: tuple[float, float] | None = None  # panorama (u, v) under the mouse
-        # status
-        self.messages: deque[Message] = deque(maxlen=50)
-        self.error: str | None = None  # shown in a banner until dismissed or the next file opens
-        self.progress: tuple[float | None, str] | None = None
-        self.busy = False
-        self.timings: dict[str, float] = {}
         self.frame_times: deque[float] = deque(maxlen=240)
-        self.job_max_frame = 0.0  # longest frame while the current job ran (s)
-        self.job_max_parts: dict[str, tuple[float, float]] = {}  # that frame's parts: (wall, CPU) s
-        self.job_frames = 0
         self.frame_parts: dict[str, tuple[float, float]] = {}  # the last frame's parts
         self.sync_parts = False  # wait for the GL after each part, so GL time lands in its part
-        # GL resources
-        self.layer_textures: dict[tuple[str, str], moderngl.Texture] = {}
-        self.texture_versions: dict[tuple[str, str], int] = {}  # uploads per texture: in the view's cache key
-        self.pending_uploads: list[tuple[str, str]] = []
-        self._fit_pending = True
         self._redraw = 2
         self.uploaded_last_frame = False
-        self.init_images()  # several images open (viewer.app.images), a reference to compare with
-        self.init_comparison()
-        self.attach_objects()
-        self.gui = None
+        self._make_collaborators(worker, run_model)
         if ui:
             from viewer.ui.gui import Gui
 
@@ -141,29 +107,48 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         gc.collect()
         gc.freeze()
 
+    def _make_collaborators(self, worker: Worker, run_model: bool) -> None:
+        """The parts the App is made of, each handed the others it uses."""
+        self.messages = Messages(self.request_redraw)
+        self.loader = Loader(worker, self.messages, run_model)
+        self.images = ImageList(self.loader, self.messages, gl_context=self.gl_context,
+                                retitle=self.update_title, redraw=self.request_redraw)
+        self.display = DisplaySettings(self.images, self.request_redraw)
+        self.pins = Pins(self.images, self.renderer, self.ctx, self.display.hdr, self.gl_context)
+        self.display.settings_changed = self.pins.dirty
+        self.camera = Camera(self.images, self.pins, self.view_size)
+        self.comparison = Comparison(self.images, self.display, self.loader, self.renderer,
+                                     self.request_redraw)
+        with self.surface.current():
+            self.objects = InsertedObjects(self.renderer, self.ctx, self.surface.finish, self.images,
+                                           self.camera, self.messages, self.request_redraw)
+        self.composer = ViewComposer(self.images, self.display, self.camera, self.comparison, self.objects,
+                                     self.renderer, lambda: self.ui_scale)
+        self.events = WorkerEvents(self.loader, self.images, self.display, self.pins, self.objects,
+                                   self.messages, self.recent, self.update_title)
+        self.remote = RemoteControl(getattr(self.surface, "wake", None))
+
     # -- properties ---------------------------------------------------------------------------
     @property
     def window(self):
         return self.surface.window
 
     @property
-    def view(self) -> EquirectView | PerspectiveView:
-        return self.views[self.view_kind]
+    def worker(self) -> Worker:
+        return self.loader.worker
 
     @property
-    def size(self) -> tuple[int, int] | None:
-        """(H, W) of the open panorama."""
-        return None if self.scene is None else self.scene.size
+    def doc(self) -> Document:
+        """The shown image's document (scene, layers, pins, textures)."""
+        return self.images.doc
 
-    @property
-    def shown_arrays(self) -> dict[str, np.ndarray]:
-        return self.gt_arrays if self.show_gt and self.gt is not None else self.arrays
-
-    def available(self, source: str | None = None) -> list[str]:
-        """Layers present for ``source`` ("pred"/"gt"; default: the one shown), in display order."""
-        src = source or ("gt" if self.show_gt and self.gt is not None else "pred")
-        arrays = self.gt_arrays if src == "gt" else self.arrays
-        return [n for n in LAYERS if n in arrays]
+    @contextlib.contextmanager
+    def gl_context(self):
+        """The App's GL and imgui contexts current for the block (several Apps may coexist)."""
+        with self.surface.current():
+            if self.gui is not None:
+                self.gui.make_current()
+            yield
 
     def view_rect(self) -> tuple[int, int, int, int]:
         """(x, y, w, h) of the view in framebuffer pixels (y from the top)."""
@@ -175,16 +160,27 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
     def view_size(self) -> tuple[int, int]:
         return self.view_rect()[2:]
 
-    def note(self, level: str, text: str) -> None:
-        self.messages.append(Message(level, text))
-        if level == "error":
-            self.error = text
-        self._redraw = max(self._redraw, 2)
-
     @property
     def ui_scale(self) -> float:
         return self.gui.scale if self.gui is not None else self.surface.content_scale
 
+    def open(self, source: str | os.PathLike | PanoScene, **kw) -> None:
+        """Open a file or scene into the image shown (``ImageList.open``: ``gt``, ``name``,
+        ``compare``, ``model``)."""
+        self.images.open(source, **kw)
+
+    def on_drop(self, paths: list[str]) -> None:
+        """Files dropped on the window: added to the open images, the first shown."""
+        for k, path in enumerate(paths):
+            self.images.add(path) if k == 0 else self.images.queue(path)
+        self.request_redraw()
+
+    def poll(self) -> bool:
+        """Apply the worker's events (after reloading a watched file that changed); True if any came."""
+        self.images.check_file_changed()
+        return self.events.poll()
+
+    # -- frames -------------------------------------------------------------------------------
     @gl_current
     def frame(self, capture: bool = False) -> float:
         """Apply updates, build the UI, draw the view and the UI and present them; with ``capture``
@@ -195,7 +191,8 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         self.surface.refresh()
         self.poll()
         parts.mark("poll")
-        uploaded = self.upload_some()
+        doc = self.images.doc
+        uploaded = doc.upload_some(self.renderer, self.display.layer)
         if uploaded:
             self.request_redraw(2)  # the view catches up next frame
         self.uploaded_last_frame = uploaded
@@ -203,9 +200,10 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         fw, fh = self.surface.framebuffer_size
         if self.gui is not None:
             self.gui.begin_frame()
-        if self._fit_pending and self.size is not None:
-            self.fit()
-            self._fit_pending = False
+        doc = self.images.doc
+        if doc.fit_pending and doc.size is not None:
+            self.camera.fit()
+            doc.fit_pending = False
         if self.gui is not None:
             self.gui.build()
         parts.mark("ui build")
@@ -213,14 +211,14 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         target.use()
         self.ctx.viewport = (0, 0, fw, fh)
         target.clear(*BACKGROUND, 1.0, viewport=(0, 0, fw, fh))
-        spec = self.frame_spec()
+        spec = self.composer.frame_spec()
         rect = self.view_rect()
         # a slice of the objects' full-quality picture (a capture finishes it: it shows it)
         self.objects.refine(spec, tuple(rect[2:]), final=capture)
         if spec is not None:
             # a frame that uploaded a texture shows the previous picture: the redraw waits a frame
-            self.renderer.render(target, rect, spec, fb_size=(fw, fh), cache_key=self.view_key(spec, rect),
-                                 stale_ok=uploaded)
+            self.renderer.render(target, rect, spec, fb_size=(fw, fh),
+                                 cache_key=self.composer.view_key(spec, rect), stale_ok=uploaded)
         parts.mark("view")
         if self.gui is not None:
             self.gui.end_frame(target)
@@ -232,14 +230,10 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         dt = time.perf_counter() - t0
         self.frame_times.append(dt)
         self.frame_parts = parts.times
-        if self.busy:
-            if dt > self.job_max_frame:
-                self.job_max_parts = dict(parts.times)
-            self.job_max_frame = max(self.job_max_frame, dt)
-            self.job_frames += 1
+        self.loader.record_frame(dt, parts.times)
         self._redraw = max(0, self._redraw - 1)
         if self._screenshot_request is not None and not capture:
-            self.save_requested_screenshot()
+            self._save_requested_screenshot()
         return dt
 
     @gl_current
@@ -251,8 +245,8 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
                 self.frame()
             else:
                 self.poll()
-                self.upload_some()
-            if not self.busy and not self.pending_uploads:
+                self.images.doc.upload_some(self.renderer, self.display.layer)
+            if not self.loader.busy and not self.images.doc.pending_uploads:
                 return True
             if self.window is not None:
                 self.surface.wait(0.01)
@@ -260,9 +254,46 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
                 time.sleep(0.005)
         return False
 
+    @gl_current
+    def screenshot(self, path: str | os.PathLike | None = None) -> np.ndarray:
+        """Draw a frame of the current state and return it as uint8 RGB (rows from the top);
+        written atomically as PNG to ``path`` if given."""
+        self.frame(capture=True)
+        while self.uploaded_last_frame or self.images.doc.pending_uploads:  # the view lags uploads by a frame
+            self.frame(capture=True)
+        img = self.last_capture
+        if path is not None:
+            from PIL import Image
+
+            from phyir.io import atomic_write
+
+            with atomic_write(path) as tmp:
+                Image.fromarray(img).save(tmp, format="PNG")
+        return img
+
+    def request_screenshot(self, path: str | os.PathLike | None = None) -> None:
+        """Save a screenshot after the frame being built (F12, the menu): ``screenshot`` draws frames
+        itself, which it cannot do from inside the UI's frame (imgui's frame is open)."""
+        if path is None:
+            stem = os.path.splitext(self.images.doc.path or "phyir-view")[0]
+            path = f"{stem}.{self.display.layer}.png"
+        self._screenshot_request = os.fspath(path)
+        self.request_redraw()
+
+    def _save_requested_screenshot(self) -> None:
+        """After a frame: the screenshot asked for while it was built, with a note on the outcome."""
+        out, self._screenshot_request = self._screenshot_request, None
+        try:
+            self.screenshot(out)
+        except OSError as e:  # e.g. a read-only folder: report, keep running
+            self.messages.note("error", f"cannot save {out}: {e.strerror or e}")
+            return
+        self.messages.note("info", f"saved {out}")
+
     def update_title(self) -> None:
         if self.window is not None:
-            self.surface.set_title(f"{self.name} - {self.title}" if self.name else self.title)
+            name = self.images.doc.name
+            self.surface.set_title(f"{name} - {self.title}" if name else self.title)
 
     # -- event loop ---------------------------------------------------------------------------
     def request_redraw(self, frames: int = 3) -> None:
@@ -273,27 +304,72 @@ class App(ImageList, Comparison, FileActions, WorkerEvents, DisplaySettings, Cam
         """Whether frames are still owed (a change asked for them)."""
         return self._redraw > 0
 
+    def listen(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
+        """Start the control socket (``phyir-view --listen``) on a loopback ``host``; returns the
+        address (port 0: a free one).  The event loops serve its commands between frames."""
+        return self.remote.listen(host, port)
+
+    def step(self) -> float:
+        """One turn of the event loop: commands, worker events, a frame if anything changed.  Returns
+        how long the loop may then wait for events (s)."""
+        changed = self.remote.serve(self)
+        if changed:
+            self.request_redraw()
+        changed = self.poll() or changed
+        animating = self.gui is not None and self.gui.animating()
+        refining = self.objects.refining()
+        busy, pending = self.loader.busy, self.images.doc.pending_uploads
+        if changed or self.redraw_pending or busy or pending or animating or refining:
+            self.frame()
+        if self.redraw_pending or self.images.doc.pending_uploads:
+            return 0.0
+        if refining:
+            return 0.01  # a background job's result shows in the next frame
+        if self.loader.busy or animating:
+            return 0.1  # progress animation, slow: leaves the CPU to the model
+        return 1.0  # idle: sleep until an event (the worker and the socket wake a window)
+
+    def wait_events(self, timeout: float) -> None:
+        """Sleep until input, the worker or a command, or ``timeout``; headless, the worker is polled
+        at least every 20 ms."""
+        if self.window is not None:
+            self.surface.wait(timeout)
+        elif self.remote.listening:
+            self.remote.wait(min(timeout, 0.02))
+        else:
+            time.sleep(min(timeout, 0.02))
+
+    def serve_until(self, done: Callable[[], bool], timeout: float | None = None) -> bool:
+        """Run the event loop (commands, frames) until ``done()`` or ``timeout`` s (None: no limit);
+        False on timeout.  What a headless ``--listen`` and the tests run."""
+        end = None if timeout is None else time.monotonic() + timeout
+        while not done():
+            if end is not None and time.monotonic() > end:
+                return False
+            self.wait_events(self.step())
+        return True
+
     def run(self) -> None:
         """The interactive loop: draws only when something changed (input, worker, animation, a
-        command on the control socket: viewer.app.remote)."""
+        command on the control socket)."""
         assert self.window is not None, "run() needs a window"
         while not (self.surface.should_close() or self.quit_requested):
             self.wait_events(self.step())
 
     def close(self) -> None:
         """Stop the control socket and the worker and free the GL resources, the UI and the window."""
-        self.stop_remote()
-        self.worker.cancel()
-        self.worker.set_wake(None)
-        self.worker.join(10.0)  # let torch finish its op: exiting under it aborts the process
+        self.remote.close()
+        worker = self.loader.worker
+        worker.cancel()
+        worker.set_wake(None)
+        worker.join(10.0)  # let torch finish its op: exiting under it aborts the process
         with self.surface.current():
             if self.gui is not None:
                 self.gui.make_current()
                 self.gui.shutdown()
                 self.gui = None
-            self.clear_shown()
-            self.close_other_images()
-            self.detach_objects()
+            self.images.release()
+            self.objects.release()
             self.renderer.release()
         self.surface.close()
         sys.setswitchinterval(self._switch_interval)

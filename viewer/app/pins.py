@@ -1,59 +1,75 @@
-"""The App's pinned probes: pinning, their read-outs and their probe images."""
+"""Pinned probes (:class:`Pins`): pinning, their read-outs and their probe images."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+
 import moderngl
-import numpy as np
 
 from phyir.errors import PhyIRError
 from phyir.insert.views import EquirectView
 from viewer.app.common import BACKGROUND, gl_current
-from viewer.probes import Pin, make_pin, pixel_values, update_pin
+from viewer.app.document import Document, release_pin
+from viewer.app.images import ImageList
+from viewer.probes import Pin, make_pin, update_pin
 from viewer.renderer import Display, Frame
 
 
 class Pins:
-    """Part of :class:`viewer.app.App`: probes pinned at panorama positions."""
+    """The shown image's pinned probes, as a sequence of :class:`~viewer.probes.Pin` (each image keeps
+    its own: ``Document.pins``).  Probe images are drawn with ``renderer`` and the ``hdr`` display
+    settings; ``on_pinned(index)`` hears of each new pin (the side panel scrolls to it)."""
 
-    # -- probes -------------------------------------------------------------------------------
-    def pin_probe(self, u: float, v: float) -> Pin:
-        """Pin the probe at panorama coordinates (u, v) (column, row; pixel centres at +0.5)."""
-        if self.scene is None:
+    def __init__(self, images: ImageList, renderer, ctx: moderngl.Context, hdr: Display,
+                 gl_context: Callable):
+        self.images = images
+        self.renderer = renderer
+        self.ctx = ctx
+        self.hdr = hdr
+        self.gl_context = gl_context
+        self.on_pinned: Callable[[int], None] = lambda index: None
+
+    def __len__(self) -> int:
+        return len(self.images.doc.pins)
+
+    def __getitem__(self, index: int) -> Pin:
+        return self.images.doc.pins[index]
+
+    def __iter__(self) -> Iterator[Pin]:
+        return iter(self.images.doc.pins)
+
+    def pin_probe(self, u: float, v: float, doc: Document | None = None) -> Pin:
+        """Pin the probe at panorama coordinates (u, v) (column, row; pixel centres at +0.5) of the
+        shown image (or of ``doc``)."""
+        doc = doc or self.images.doc
+        if doc.scene is None:
             raise PhyIRError("no panorama is open")
-        pin = make_pin(u, v, len(self.pins), self.scene, self.arrays, self.gt, self.hdr.exposure)
-        self.pins.append(pin)
-        if self.gui is not None:
-            self.gui.scroll_to_pin = len(self.pins) - 1
+        pin = make_pin(u, v, len(doc.pins), doc.scene, doc.arrays, doc.gt, self.hdr.exposure)
+        doc.pins.append(pin)
+        self.on_pinned(len(doc.pins) - 1)
         return pin
 
     @gl_current
     def unpin(self, index: int = -1) -> None:
-        if self.pins:
-            self.release_pin(self.pins.pop(index))
+        pins = self.images.doc.pins
+        if pins:
+            release_pin(pins.pop(index))
 
     def set_pin_exposure(self, index: int, ev: float) -> None:
-        self.pins[index].exposure = float(ev)
-        self.pins[index].textures["stale"] = {"pred", "gt"}
+        pin = self.images.doc.pins[index]
+        pin.exposure = float(ev)
+        pin.textures["stale"] = {"pred", "gt"}
 
-    def pin_values(self, u: float, v: float, source: str = "pred") -> dict[str, np.ndarray]:
-        """Every layer's value at (u, v) (what the read-out shows)."""
-        arrays = self.gt_arrays if source == "gt" else self.arrays
-        return pixel_values(arrays, u, v, self.size) if self.size else {}
-
-    def refresh_pins(self) -> None:
-        for pin in self.pins:
-            update_pin(pin, self.scene, self.arrays, self.gt)
+    def refresh(self, doc: Document) -> None:
+        """``doc``'s layers changed: its pins read them again."""
+        for pin in doc.pins:
+            update_pin(pin, doc.scene, doc.arrays, doc.gt)
             pin.textures["stale"] = {"pred", "gt"}
 
-    def dirty_pins(self) -> None:
-        for pin in self.pins:
+    def dirty(self) -> None:
+        """The display changed: probe images are drawn again."""
+        for pin in self.images.doc.pins:
             pin.textures["stale"] = {"pred", "gt"}
-
-    def release_pin(self, pin: Pin) -> None:
-        for obj in pin.textures.values():
-            if isinstance(obj, (moderngl.Texture, moderngl.Framebuffer)):
-                obj.release()
-        pin.textures.clear()
 
     def probe_image(self, pin: Pin, which: str, size: tuple[int, int]) -> moderngl.Texture | None:
         """The pin's probe ("pred" or "gt") drawn into an RGBA8 texture of ``size`` (w, h) with the

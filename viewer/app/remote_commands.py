@@ -1,7 +1,8 @@
 """The control socket's commands (``phyir-view --listen``, docs/viewer.md): each takes the App and the
-command's arguments and returns the reply's fields, calling the same App methods as the menus and
-keys; run on the UI thread between frames (``viewer.app.remote``).  A bad argument raises
-PhyIRError, which becomes ``{"ok": false, "error": ...}``."""
+command's arguments and returns the reply's fields, calling the same methods of the App's
+collaborators (``app.images``, ``app.display``, ...) as the menus and keys; run on the UI thread
+between frames (``viewer.app.remote``).  A bad argument raises PhyIRError, which becomes
+``{"ok": false, "error": ...}``."""
 
 from __future__ import annotations
 
@@ -45,18 +46,18 @@ def _image(app, image: Image) -> int:
         return image
     if not isinstance(image, str):
         raise PhyIRError(f"an image is an index or a name, not {image!r}")
-    named = [k for k, e in enumerate(app.images) if app.image_label(e) == image]
+    named = [k for k, e in enumerate(app.images) if app.images.label(e) == image]
     if len(named) > 1:
         raise PhyIRError(f"{len(named)} images are named {image!r}: give the index or the path")
     found = named[0] if named else _by_path(app, image)
     if found is None:
-        labels = ", ".join(app.image_label(e) for e in app.images)
+        labels = ", ".join(app.images.label(e) for e in app.images)
         raise PhyIRError(f"no image named {image!r} (open: {labels})")
     return found
 
 
 def _by_path(app, path: str) -> int | None:
-    e = app.find_image(path)
+    e = app.images.find(path)
     return None if e is None else app.images.index(e)
 
 
@@ -72,46 +73,47 @@ def open_(app, path: str, show: bool = True) -> dict:
     path = _string(path, "path")
     if not os.path.isfile(path):
         raise PhyIRError(f"no such file: {path}")
-    e = app.add_image(path) if show else app.queue_image(path)
-    return {"index": app.images.index(e), "name": app.image_label(e)}
+    e = app.images.add(path) if show else app.images.queue(path)
+    return {"index": app.images.index(e), "name": app.images.label(e)}
 
 
 def close(app, image: Image | None = None) -> dict:
-    app.close_image(None if image is None else _image(app, image))
+    app.images.close(None if image is None else _image(app, image))
     return {"images": len(app.images)}
 
 
 def reload(app) -> None:
-    app.reload()
+    app.images.reload()
 
 
 def layer(app, name: str) -> None:
     if name not in LAYERS:
         raise PhyIRError(f"unknown layer {name!r} (choose from {', '.join(LAYERS)})")
-    have = app.available()
-    if name not in have and not app.busy:  # (while busy the model may still add it)
-        raise PhyIRError(f"{app.name or 'the image'} has no {name} layer (have: {', '.join(have) or 'none'})")
-    app.set_layer(name)
+    have = app.doc.available()
+    if name not in have and not app.loader.busy:  # (while busy the model may still add it)
+        raise PhyIRError(f"{app.doc.name or 'the image'} has no {name} layer "
+                         f"(have: {', '.join(have) or 'none'})")
+    app.display.set_layer(name)
 
 
 def exposure(app, ev: float) -> None:
     if isinstance(ev, bool) or not isinstance(ev, int | float) or not (math.isfinite(ev) and -64 <= ev <= 64):
         raise PhyIRError(f"ev must be a finite number in [-64, 64], got {ev!r}")
-    app.set_exposure(ev)
+    app.display.set_exposure(ev)
 
 
 def select(app, image: Image) -> None:
-    app.select_image(_image(app, image))
+    app.images.select(_image(app, image))
 
 
 def reference(app, image: Image | None) -> None:
-    app.set_reference(None if image is None else _image(app, image))
+    app.images.set_reference(None if image is None else _image(app, image))
 
 
 def compare(app, mode: str) -> None:
     if mode not in (*MODES, "off"):
         raise PhyIRError(f"unknown comparison {mode!r} (choose from {', '.join(MODES)}, off)")
-    app.set_compare(None if mode == "off" else mode)
+    app.comparison.set_mode(None if mode == "off" else mode)
 
 
 def screenshot(app, path: str) -> dict:
@@ -123,14 +125,15 @@ def screenshot(app, path: str) -> dict:
 
 def status(app) -> dict:
     def describe(k: int, e) -> dict:
-        path = app.image_state(e, "path") or (e.source if isinstance(e.source, str) else None)
-        return {"index": k, "name": app.image_label(e), "path": path, "loaded": e.loaded}
+        path = e.doc.path or (e.source if isinstance(e.source, str) else None)
+        return {"index": k, "name": app.images.label(e), "path": path, "loaded": e.loaded}
 
-    return {"current": app.current, "name": app.name, "layer": app.layer, "layers": app.available(),
-            "images": [describe(k, e) for k, e in enumerate(app.images)], "reference": app.reference_index,
-            "compare": app.compare_mode, "exposure": app.hdr.exposure,
-            "busy": bool(app.busy or app.pending_uploads),
-            "error": app.error}
+    return {"current": app.images.current, "name": app.doc.name, "layer": app.display.layer,
+            "layers": app.doc.available(), "images": [describe(k, e) for k, e in enumerate(app.images)],
+            "reference": app.images.reference_index,
+            "compare": app.comparison.mode, "exposure": app.display.hdr.exposure,
+            "busy": bool(app.loader.busy or app.doc.pending_uploads),
+            "error": app.messages.error}
 
 
 def quit_(app) -> None:

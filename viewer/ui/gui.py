@@ -1,35 +1,91 @@
-"""The imgui interface: :class:`Gui` owns the imgui context and its frame; the menu bar
-(``menu_bar``), side panel (``side_panel``, with the open images: ``images_panel``), status bar
-(``status_bar``) and the view's mouse and keyboard handling (``input``) are the parts it is made of.
+"""The imgui interface: :class:`Gui` owns the imgui context and its frame, and the parts the interface
+is made of, each with its own state: the menu bar (``menu``: ``menu_bar``), the side panel
+(``side_panel``, with the open images: ``images_panel``), the status bar (``status_bar``), the view's
+mouse and keyboard handling (``input``) and the side panel's sections after the probes
+(``sections``: the inserted objects' ``objects_panel``, and any added with ``add_section``).
 
-Everything here only reads the :class:`~viewer.app.App`'s state and calls its methods, so a click
-and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL calls
-use framebuffer pixels (``* scale`` on high-DPI screens).
+Everything here reads the app's collaborators (:class:`ViewerApp`) and calls their methods, so a
+click and a script take the same path.  Sizes are in imgui's logical pixels; the view and the GL
+calls use framebuffer pixels (``* scale`` on high-DPI screens).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from viewer.ui.images_panel import ImagesPanel
 from viewer.ui.input import ViewInput
 from viewer.ui.menu_bar import MenuBar
+from viewer.ui.objects_panel import ObjectsPanel
 from viewer.ui.side_panel import SidePanel
 from viewer.ui.status_bar import StatusBar
 from viewer.ui.widgets import PANEL_WIDTH, imgui
 
 if TYPE_CHECKING:
-    from viewer.app import App
+    from viewer.app.camera import Camera
+    from viewer.app.common import Messages
+    from viewer.app.comparison import Comparison
+    from viewer.app.composer import ViewComposer
+    from viewer.app.display import DisplaySettings
+    from viewer.app.document import Document
+    from viewer.app.images import ImageList
+    from viewer.app.loader import Loader
+    from viewer.app.objects import InsertedObjects
+    from viewer.app.pins import Pins
 
-__all__ = ["PANEL_WIDTH", "Gui"]
+__all__ = ["PANEL_WIDTH", "Gui", "Section", "ViewerApp"]
 
 
-class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
-    """The imgui context and its frame; the interface is built by the parts it is made of."""
+class ViewerApp(Protocol):
+    """What the interface uses of the app (:class:`viewer.app.App`): its collaborators and window."""
 
-    def __init__(self, app: App):
+    surface: object
+    ctx: object
+    recent: object
+    frame_times: object
+    images: ImageList
+    loader: Loader
+    display: DisplaySettings
+    camera: Camera
+    pins: Pins
+    comparison: Comparison
+    objects: InsertedObjects
+    composer: ViewComposer
+    messages: Messages
+
+    @property
+    def window(self): ...
+
+    @property
+    def doc(self) -> Document: ...
+
+    def view_rect(self) -> tuple[int, int, int, int]: ...
+
+    def open(self, source, **kw) -> None: ...
+
+    def request_redraw(self, frames: int = 3) -> None: ...
+
+    def request_screenshot(self, path=None) -> None: ...
+
+
+class Section(Protocol):
+    """A section of the side panel: ``draw()`` fills it under a collapsing header ``title`` (an
+    imgui label: ``"Name (3)###name"`` keeps its id while the count changes), open at first if
+    ``default_open``."""
+
+    title: str
+    default_open: bool
+
+    def draw(self) -> None: ...
+
+
+class Gui:
+    """The imgui context and its frame, the scale (``scale``: logical px, ``fb_scale``: framebuffer
+    px per logical px); the interface is built by the parts it owns."""
+
+    def __init__(self, app: ViewerApp):
         self.app = app
         self.ctx = imgui.create_context()
         imgui.set_current_context(self.ctx)  # create_context keeps an existing context current
@@ -55,19 +111,21 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
 
             self.impl = ProgrammablePipelineRenderer()
         self._last = time.perf_counter()
-        self._dialog = None          # portable_file_dialogs.open_file in flight
-        self._path_popup = False     # the fallback "open path" popup
-        self._path_text = ""
-        self._dragged = False
-        self._split_drag = False  # the split view's divide is being dragged
-        self._show_help = False
-        self.help_lines: list[tuple[str, float, float]] = []  # the help window's (text, x, y), for tests
-        self.probe_rects: dict[tuple[int, str], tuple[float, float, float, float]] = {}  # for tests
-        self.quit_requested = False
-        self.scroll_to_pin: int | None = None
-        self._hist_key: tuple | None = None  # the side panel's histogram: what it was computed for
-        self._hist = None
-        self.histogram_open: bool | None = None  # force the Histogram section open/closed (None: the user's)
+        self.objects_panel = ObjectsPanel(app.objects, app.camera, app.messages)
+        self.sections: list[Section] = [self.objects_panel]
+        self.menu = MenuBar(app, self)
+        self.images_panel = ImagesPanel(app, self)
+        self.side_panel = SidePanel(app, self, self.images_panel)
+        self.status_bar = StatusBar(app, self)
+        self.input = ViewInput(app, self, self.menu, self.images_panel, self.objects_panel)
+        app.pins.on_pinned = self._scroll_to_pin
+
+    def add_section(self, section: Section) -> None:
+        """Draw ``section`` in the side panel, after the probes and the sections added before it."""
+        self.sections.append(section)
+
+    def _scroll_to_pin(self, index: int) -> None:
+        self.side_panel.scroll_to_pin = index
 
     # -- frame --------------------------------------------------------------------------------
     @property
@@ -105,7 +163,7 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         self.impl.render(imgui.get_draw_data())
 
     def animating(self) -> bool:
-        return self._dialog is not None
+        return self.menu.animating()
 
     def make_current(self) -> None:
         imgui.set_current_context(self.ctx)
@@ -152,14 +210,14 @@ class Gui(MenuBar, ViewInput, SidePanel, ImagesPanel, StatusBar):
         fw, fh = app.surface.framebuffer_size
         s = self.fb_scale
         W, H = fw / s, fh / s  # logical
-        self.menu_bar()
-        self.view_window(fw, fh)
-        self.side_panel(W, H)
-        self.status_bar(W, H)
-        self.error_banner(fw, fh)
-        self.open_popups()
-        self.poll_dialog()
+        self.menu.draw()
+        self.input.view_window(fw, fh)
+        self.side_panel.draw(W, H)
+        self.status_bar.draw(W, H)
+        self.status_bar.error_banner(fw, fh)
+        self.menu.open_popups()
+        self.menu.poll_dialog()
         if not self.io.want_capture_keyboard and not self.io.want_text_input:
-            self.handle_keys()
-        if self._show_help:
-            self.help_window()
+            self.input.handle_keys()
+        if self.menu.show_help:
+            self.menu.help_window()

@@ -16,9 +16,24 @@ from viewer.ui.widgets import imgui
 
 
 class MenuBar:
-    """Part of :class:`viewer.ui.gui.Gui`: the menu bar, file dialogs and the help window."""
+    """Part of :class:`viewer.ui.gui.Gui` (``gui``: its scale): the menu bar, file dialogs and the
+    help window (``show_help``; ``help_lines`` keeps each line drawn and where, for tests)."""
 
-    def menu_bar(self) -> None:
+    def __init__(self, app, gui):
+        self.app = app
+        self.gui = gui
+        self._dialog = None          # portable_file_dialogs.open_file in flight
+        self._path_popup = False     # the fallback "open path" popup
+        self._path_text = ""
+        self.show_help = False
+        self.help_lines: list[tuple[str, float, float]] = []
+        self.quit_requested = False
+
+    def animating(self) -> bool:
+        """A file dialog is open: frames go on until it answers."""
+        return self._dialog is not None
+
+    def draw(self) -> None:
         app = self.app
         if not imgui.begin_main_menu_bar():
             return
@@ -31,56 +46,57 @@ class MenuBar:
             if imgui.begin_menu("Recent files", bool(recent)):
                 for f in recent:
                     if imgui.menu_item_simple(f):
-                        app.add_image(f)
+                        app.images.add(f)
                 imgui.end_menu()
-            if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.path is not None):
-                app.reload()
-            if imgui.menu_item_simple("Close image", "Ctrl+W", enabled=app.entry.source is not None):
-                app.close_image()
-            _, app.watch = imgui.menu_item("Reload when the file changes", "", app.watch)
+            if imgui.menu_item_simple("Reload", "Ctrl+R", enabled=app.doc.path is not None):
+                app.images.reload()
+            if imgui.menu_item_simple("Close image", "Ctrl+W", enabled=app.images.entry.source is not None):
+                app.images.close()
+            _, app.images.watch = imgui.menu_item("Reload when the file changes", "", app.images.watch)
             imgui.separator()
-            if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.path is not None):
+            if imgui.menu_item_simple("Save screenshot", "F12", enabled=app.doc.path is not None):
                 self.save_screenshot()
-            if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=app.scene is not None):
+            scene = app.doc.scene is not None
+            if imgui.menu_item_simple("Export glTF (room, lights, objects)", enabled=scene):
                 self._export_gltf()
             if imgui.menu_item_simple("Quit", "Ctrl+Q"):
                 self.request_quit()
             imgui.end_menu()
         if imgui.begin_menu("View"):
             for kind, key in (("equirect", "V"), ("perspective", "V")):
-                if imgui.menu_item_simple(kind.capitalize(), key, app.view_kind == kind):
-                    app.set_view(kind)
+                if imgui.menu_item_simple(kind.capitalize(), key, app.camera.view_kind == kind):
+                    app.camera.set_view(kind)
             imgui.separator()
             if imgui.menu_item_simple("Fit", "F"):
-                app.set_view("equirect")
-                app.fit()
+                app.camera.set_view("equirect")
+                app.camera.fit()
             if imgui.menu_item_simple("1:1", "Z"):
-                app.set_view("equirect")
-                app.one_to_one()
+                app.camera.set_view("equirect")
+                app.camera.one_to_one()
             imgui.end_menu()
         if imgui.begin_menu("Images"):
             self._images_menu()
             imgui.end_menu()
         if imgui.begin_menu("Layer"):
-            avail = app.available()
+            avail = app.doc.available()
             for name, key in zip(LAYERS, KEYS):
-                if imgui.menu_item_simple(name, key, app.layer == name, name in avail):
-                    app.set_layer(name)
-            if app.gt is not None:
+                if imgui.menu_item_simple(name, key, app.display.layer == name, name in avail):
+                    app.display.set_layer(name)
+            if app.doc.gt is not None:
                 imgui.separator()
-                if imgui.menu_item_simple("Show ground truth", "G", app.show_gt):
-                    app.set_source(not app.show_gt)
+                if imgui.menu_item_simple("Show ground truth", "G", app.doc.show_gt):
+                    app.display.set_source(not app.doc.show_gt)
             imgui.end_menu()
         if imgui.begin_menu("Model"):
-            can = app.path is not None and not app.busy
+            can = app.doc.path is not None and not app.loader.busy
             if imgui.menu_item_simple("Predict all layers and compare with the file's", enabled=can):
-                app.open(app.path, compare=True)
-            if imgui.menu_item_simple("Cancel", "Esc", enabled=app.busy):
-                app.cancel()
+                app.open(app.doc.path, compare=True)
+            if imgui.menu_item_simple("Cancel", "Esc", enabled=app.loader.busy):
+                app.images.cancel()
             imgui.end_menu()
         if imgui.begin_menu("Help"):
             if imgui.menu_item_simple("Keys and mouse", "H"):
-                self._show_help = True
+                self.show_help = True
             imgui.end_menu()
         imgui.end_main_menu_bar()
 
@@ -93,11 +109,11 @@ class MenuBar:
             imgui.text("Panorama (.hdr, .exr, .png, .jpg) or scene file (.exr):")
             if imgui.is_window_appearing():
                 imgui.set_keyboard_focus_here()
-            imgui.set_next_item_width(520 * self.scale)
+            imgui.set_next_item_width(520 * self.gui.scale)
             enter, self._path_text = imgui.input_text("##path", self._path_text,
                                                       imgui.InputTextFlags_.enter_returns_true)
             if (imgui.button("Open") or enter) and self._path_text.strip():
-                app.add_image(os.path.expanduser(self._path_text.strip()))
+                app.images.add(os.path.expanduser(self._path_text.strip()))
                 imgui.close_current_popup()
             imgui.same_line()
             if imgui.button("Cancel") or imgui.is_key_pressed(imgui.Key.escape):
@@ -112,7 +128,7 @@ class MenuBar:
             return
         from imgui_bundle import portable_file_dialogs as pfd
 
-        start = os.path.dirname(self.app.path) if self.app.path else os.getcwd()
+        start = os.path.dirname(self.app.doc.path) if self.app.doc.path else os.getcwd()
         filters = ["Panoramas and scenes", "*.hdr *.exr *.png *.jpg *.jpeg", "All files", "*"]
         self._dialog = pfd.open_file("Open panoramas or scenes", start, filters, pfd.opt.multiselect)
 
@@ -121,35 +137,35 @@ class MenuBar:
             files = self._dialog.result()
             self._dialog = None
             for k, f in enumerate(files or ()):  # added to the open images, the first shown
-                self.app.add_image(f) if k == 0 else self.app.queue_image(f)
+                self.app.images.add(f) if k == 0 else self.app.images.queue(f)
 
     def _images_menu(self) -> None:
         """The open images (select one), switching, the reference and the comparison modes."""
         app = self.app
         for k, e in enumerate(app.images):
-            if imgui.menu_item_simple(f"{k + 1} {app.image_label(e)}", "", k == app.current):
-                app.select_image(k)
+            if imgui.menu_item_simple(f"{k + 1} {app.images.label(e)}", "", k == app.images.current):
+                app.images.select(k)
         imgui.separator()
         many = len(app.images) > 1
         if imgui.menu_item_simple("Next image", "] / PageDown", enabled=many):
-            app.next_image(1)
+            app.images.next(1)
         if imgui.menu_item_simple("Previous image", "[ / PageUp", enabled=many):
-            app.next_image(-1)
-        if imgui.menu_item_simple("Use as reference", "Shift+R", app.reference is app.entry):
-            app.set_reference(None if app.reference is app.entry else app.current)
+            app.images.next(-1)
+        if imgui.menu_item_simple("Use as reference", "Shift+R", app.images.reference is app.images.entry):
+            app.images.set_reference(None if app.images.reference is app.images.entry else app.images.current)
         for mode in (None, *MODES):
-            if imgui.menu_item_simple(f"Compare: {MODE_NAMES[mode]}", "D", app.compare_mode == mode,
-                                      app.reference is not None):
-                app.set_compare(mode)
+            if imgui.menu_item_simple(f"Compare: {MODE_NAMES[mode]}", "D", app.comparison.mode == mode,
+                                      app.images.reference is not None):
+                app.comparison.set_mode(mode)
 
     def save_screenshot(self) -> None:
         self.app.request_screenshot()
 
     def _export_gltf(self) -> None:
         try:
-            self.app.export_gltf()
+            self.app.objects.export_gltf()
         except (PhyIRError, OSError) as e:  # a scene without depth, a read-only folder: say so, keep running
-            self.app.note("error", f"export: {e}")
+            self.app.messages.note("error", f"export: {e}")
 
     def request_quit(self) -> None:
         self.quit_requested = True
@@ -162,7 +178,7 @@ class MenuBar:
         """Every key and mouse action, in sections laid out in two columns, the window sized to them
         (at 1x it fits a 1394x556 window) and centred on the view; ``help_lines`` keeps each line
         drawn and where (screen px), for tests."""
-        s, sc = self.fb_scale, self.scale
+        s, sc = self.gui.fb_scale, self.gui.scale
         x, y, w, h = self.app.view_rect()
         imgui.set_next_window_pos(imgui.ImVec2((x + w / 2) / s, (y + h / 2) / s), imgui.Cond_.always,
                                   imgui.ImVec2(0.5, 0.5))
@@ -188,7 +204,7 @@ class MenuBar:
                 imgui.end_group()
         imgui.end()
         if not keep:
-            self._show_help = False
+            self.show_help = False
 
     def _help_line(self, text: str, disabled: bool = False) -> None:
         p = imgui.get_cursor_screen_pos()

@@ -35,14 +35,15 @@ class ObjectKey:
 
 
 def _add_sphere(panel: ObjectsPanel) -> None:
-    panel.add("sphere")
+    panel.inserted.add("sphere")
 
 
 def _select(panel: ObjectsPanel, step: int) -> None:
-    n = len(panel.objects)
+    ins = panel.inserted
+    n = len(ins.objects)
     if n:
-        current = panel.selected if panel.selected is not None else (-1 if step > 0 else 0)
-        panel.selected = (current + step) % n
+        current = ins.selected if ins.selected is not None else (-1 if step > 0 else 0)
+        ins.selected = (current + step) % n
 
 
 def _toggle_drop(panel: ObjectsPanel) -> None:
@@ -54,18 +55,18 @@ def _next_gizmo(panel: ObjectsPanel) -> None:
 
 
 def _toggle_shown(panel: ObjectsPanel) -> None:
-    panel.hook.enabled = not panel.hook.enabled
-    panel.app.request_redraw()
+    panel.inserted.hook.enabled = not panel.inserted.hook.enabled
+    panel.inserted.redraw()
 
 
 def _duplicate(panel: ObjectsPanel) -> None:
-    if panel.selected is not None:
-        panel.duplicate(panel.selected)
+    if panel.inserted.selected is not None:
+        panel.inserted.duplicate(panel.inserted.selected)
 
 
 def _delete(panel: ObjectsPanel) -> None:
-    if panel.selected is not None:
-        panel.delete(panel.selected)
+    if panel.inserted.selected is not None:
+        panel.inserted.delete(panel.inserted.selected)
 
 
 # Free keys only: the layers have the digits, the display E O R T C X, the views F Z V, the images
@@ -97,4 +98,4 @@ def handle_object_keys(panel: ObjectsPanel, shift: bool, ctrl: bool) -> None:
             try:
                 k.action(panel)
             except PhyIRError as e:
-                panel.app.note("error", str(e))
+                panel.messages.note("error", str(e))

@@ -3,9 +3,12 @@ per-call error checks are turned off: import it from here), sizes, colours and f
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from viewer.gl.window import fast_pyopengl
+from viewer.renderer import colormap_lut
 
 fast_pyopengl()
 from imgui_bundle import imgui  # noqa: E402
@@ -29,3 +32,26 @@ def fmt_number(x: float) -> str:
 def fmt_value(a: np.ndarray) -> str:
     a = np.atleast_1d(a)
     return ", ".join(fmt_number(float(x)) for x in a)
+
+
+def colour_bar(name: str, lo: str, hi: str, scale: float) -> None:
+    """Colour map ``name`` as a bar the width of the panel, its ends labelled ``lo`` and ``hi``."""
+    lut = _bar_lut(name)
+    dl = imgui.get_window_draw_list()
+    p = imgui.get_cursor_screen_pos()
+    w = imgui.get_content_region_avail().x
+    h = 10 * scale
+    n = len(lut)
+    for k, c in enumerate(lut):
+        x0, x1 = p.x + w * k / n, p.x + w * (k + 1) / n + 1
+        dl.add_rect_filled(imgui.ImVec2(x0, p.y), imgui.ImVec2(x1, p.y + h), col32(*c))
+    imgui.dummy(imgui.ImVec2(w, h))
+    imgui.text(lo)
+    imgui.same_line(max(0.0, w - imgui.calc_text_size(hi).x))
+    imgui.text(hi)
+
+
+@functools.cache
+def _bar_lut(name: str) -> np.ndarray:
+    """The colour bar's 64 colours of colour map ``name`` (computed once)."""
+    return colormap_lut(name, 64)

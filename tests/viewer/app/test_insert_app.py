@@ -31,9 +31,10 @@ def view_pixels(app) -> np.ndarray:
 
 
 def screen_of(app, point: np.ndarray) -> tuple[float, float]:
-    H, W = app.size
+    H, W = app.doc.size
     u, v, _ = pano.points_to_uv(torch.as_tensor(point), H, W)
-    x, y, _ = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+    x, y, _ = app.camera.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(),
+                                           app.doc.size)
     return float(x), float(y)
 
 
@@ -62,12 +63,12 @@ def test_add_drag_layers_delete_and_export(app, tmp_path):
     moved = view_pixels(app)
     assert (np.abs(moved - with_obj).sum(-1) > 0)[int(cy), int(cx2)]
     # objects are drawn over the image layer only
-    app.set_layer("depth")
+    app.display.set_layer("depth")
     depth_with = view_pixels(app)
     panel.set_visible(0, False)
     assert np.array_equal(view_pixels(app), depth_with)
     panel.set_visible(0, True)
-    app.set_layer("image")
+    app.display.set_layer("image")
     # export: EXR passes and a PNG
     files = panel.export(str(tmp_path / "room_insert.exr"))
     assert [f.rsplit(".", 1)[1] for f in files] == ["exr", "png"]
@@ -86,11 +87,11 @@ def test_view_at_takes_fractions_and_warns_on_the_ceiling(app):
     from viewer.app.cli_objects import ObjectSpec, add_objects
 
     panel, point = app.objects, options.image_point(1e6)
-    add_objects(app, [ObjectSpec("sphere", at=point("0.3125,0.78125")),
+    add_objects(app.objects, [ObjectSpec("sphere", at=point("0.3125,0.78125")),
                       ObjectSpec("sphere", at=(39.5, 49.5))])
     assert np.allclose(panel.objects[0].position, panel.objects[1].position)  # (128x64: 40, 50)
     assert not any("ceiling" in m.text for m in app.messages)
-    add_objects(app, [ObjectSpec("sphere", at=point("0.5,0.05"))])
+    add_objects(app.objects, [ObjectSpec("sphere", at=point("0.5,0.05"))])
     last = app.messages[-1]
     assert last.level == "warning" and "--at 0.5,0.05: the point is on the ceiling" in last.text
     assert panel.objects[-1].support[1][1] < -0.5
@@ -101,16 +102,16 @@ def test_view_at_takes_fractions_and_warns_on_the_ceiling(app):
 def test_click_to_drop_takes_the_click_from_the_probe_pin(app):
     from phyir.insert.objects import PRESETS
 
-    panel = app.objects
+    panel, ui = app.objects, app.gui.objects_panel
     panel.add("cube", PRESETS["diffuse"], 0.2, at=(64.5, 50.5))
-    panel.drop_mode = True
+    ui.drop_mode = True
     pins = len(app.pins)
     x, y = screen_of(app, np.array([0.8, FLOOR_Y, -1.5]))
-    took = panel.view_mouse(True, True, True, False, False, x, y)
+    took = ui.view_mouse(True, True, True, False, False, x, y)
     assert took and len(app.pins) == pins
     obj = panel.objects[-1]
     np.testing.assert_allclose(obj.support[0], [0.8, FLOOR_Y, -1.5], atol=0.05)
-    panel.drop_mode = False
+    ui.drop_mode = False
     panel.delete(len(panel.objects) - 1)
 
 
@@ -122,24 +123,24 @@ def test_panel_and_gizmo_build_in_a_frame(app, monkeypatch):
 
     panel = app.objects
     panel.add("cylinder", PRESETS["mirror-silver"], 0.2, at=(50.5, 50.5))
-    app.set_view("perspective", yaw=0.0, pitch=-0.5)
+    app.camera.set_view("perspective", yaw=0.0, pitch=-0.5)
     original = app.gui.build
     calls = []
 
     def build():
         original()
         imgui.begin("objects test")
-        panel.build_ui()
+        app.gui.objects_panel.draw()
         x, y, w, h = app.view_rect()
         s = app.gui.fb_scale
-        calls.append(panel.gizmo((x / s, y / s, w / s, h / s), (w, h)))
+        calls.append(app.gui.objects_panel.gizmo((x / s, y / s, w / s, h / s), (w, h)))
         imgui.end()
 
     monkeypatch.setattr(app.gui, "build", build)
     app.frame()
     app.frame()
     assert len(calls) == 2
-    app.set_view("equirect")
+    app.camera.set_view("equirect")
     panel.delete(len(panel.objects) - 1)
 
 
@@ -161,12 +162,12 @@ def test_dragging_draws_receivers_coarse_under_sharp_objects_over_the_sharp_laye
     from phyir.insert.objects import PRESETS
 
     panel = app.objects
-    app.set_view(view)
+    app.camera.set_view(view)
     if view == "perspective":  # aimed at where the object will stand
-        H, W = app.size
+        H, W = app.doc.size
         d = pano.uv_to_dir(torch.tensor(40.5), torch.tensor(50.5), H, W)
         lon, lat = pano.dir_to_lonlat(d)
-        app.views["perspective"].update(yaw=float(lon), pitch=float(lat))
+        app.camera.views["perspective"].update(yaw=float(lon), pitch=float(lat))
     bare = view_pixels(app)
     panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
     try:
@@ -179,7 +180,7 @@ def test_dragging_draws_receivers_coarse_under_sharp_objects_over_the_sharp_laye
     finally:
         panel.hook.dragging = False
         panel.delete(len(panel.objects) - 1)
-        app.set_view("equirect")
+        app.camera.set_view("equirect")
     diff = np.abs(draft - still).max(-1)
     untouched = (np.abs(still - bare).max(-1) == 0) & (np.abs(draft - bare).max(-1) == 0)
     assert untouched.mean() > 0.3 and diff[untouched].max() == 0
@@ -200,9 +201,9 @@ def test_a_draft_frame_skips_the_display_pass_where_the_objects_redraw_the_view(
     from phyir.insert.objects import PRESETS
 
     panel = app.objects
-    app.set_view(view)
+    app.camera.set_view(view)
     if view == "perspective":
-        app.views["perspective"].update(yaw=0.0, pitch=-0.4)
+        app.camera.views["perspective"].update(yaw=0.0, pitch=-0.4)
     panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
     w, h = app.view_size()
     try:
@@ -219,7 +220,7 @@ def test_a_draft_frame_skips_the_display_pass_where_the_objects_redraw_the_view(
         del panel.hook.overwrites
         panel.hook.dragging = False
         panel.delete(len(panel.objects) - 1)
-        app.set_view("equirect")
+        app.camera.set_view("equirect")
     assert np.abs(skipped - everywhere).max() == 0
 
 
@@ -246,13 +247,13 @@ def test_a_dragging_frame_that_draws_an_impostor_keeps_the_last_receivers(app):
     from phyir.insert.objects import PRESETS
 
     panel, hook = app.objects, app.objects.hook
-    app.set_view("perspective")
-    H, W = app.size
+    app.camera.set_view("perspective")
+    H, W = app.doc.size
     d = pano.uv_to_dir(torch.tensor(40.5), torch.tensor(50.5), H, W)
     lon, lat = pano.dir_to_lonlat(d)
-    fov = app.views["perspective"].fov
+    fov = app.camera.views["perspective"].fov
     # narrow: the objects' reach covers the view, so the draft's region stays the same
-    app.views["perspective"].update(fov=25.0, yaw=float(lon), pitch=float(lat))
+    app.camera.views["perspective"].update(fov=25.0, yaw=float(lon), pitch=float(lat))
     obj = panel.add("sphere", PRESETS["diffuse"], 0.3, at=(40.5, 50.5))
     cx, cy = screen_of(app, obj.bounding_sphere()[0])
     drawn, impostors, rects = [], [], []
@@ -268,8 +269,8 @@ def test_a_dragging_frame_that_draws_an_impostor_keeps_the_last_receivers(app):
         panel.end_drag()
     finally:
         panel.delete(len(panel.objects) - 1)
-        app.views["perspective"].update(fov=fov)
-        app.set_view("equirect")
+        app.camera.views["perspective"].update(fov=fov)
+        app.camera.set_view("equirect")
     assert len(set(rects)) == 1
     assert drawn.count(0) >= 3 and "00" not in "".join(map(str, drawn))
     assert all(imp for imp, n in zip(impostors, drawn) if n == 0)  # kept only when the impostor was drawn

@@ -27,19 +27,20 @@ def app(egl):
     a = box_room_app()
     a.objects.add("sphere", PRESETS["matte-silver"], 0.3, at=(40.5, 50.5))
     a.objects.add("cube", PRESETS["diffuse"], 0.2, at=(52.5, 50.5))
-    H, W = a.size
+    H, W = a.doc.size
     lon, lat = pano.dir_to_lonlat(pano.uv_to_dir(torch.tensor(46.5), torch.tensor(50.5), H, W))
-    a.set_view("perspective")
-    a.views["perspective"].update(yaw=float(lon), pitch=float(lat))
+    a.camera.set_view("perspective")
+    a.camera.views["perspective"].update(yaw=float(lon), pitch=float(lat))
     a.objects.hook.refinement.budget_s = 0.0  # the smallest strips: many slices
     yield a
     a.close()
 
 
 def screen_of(app, point: np.ndarray) -> tuple[float, float]:
-    H, W = app.size
+    H, W = app.doc.size
     u, v, _ = pano.points_to_uv(torch.as_tensor(point), H, W)
-    x, y, _ = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+    x, y, _ = app.camera.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(),
+                                           app.doc.size)
     return float(x), float(y)
 
 
@@ -126,21 +127,21 @@ def test_a_change_while_refining_starts_again_and_nothing_stale_is_shown(app):
     app.frame()
     assert ref.key != key and not ref.done and ref.slices == []  # the frame of a change: the draft only
     # while the view is turned frame after frame, each frame starts it again and draws no slice
-    starts, yaw = ref.starts, app.views["perspective"].yaw
+    starts, yaw = ref.starts, app.camera.views["perspective"].yaw
     for k in range(1, 4):
-        app.views["perspective"].update(yaw=yaw + 0.01 * k)
+        app.camera.views["perspective"].update(yaw=yaw + 0.01 * k)
         app.frame()
     assert ref.starts == starts + 3 and ref.slices == []
-    app.views["perspective"].update(yaw=yaw)
+    app.camera.views["perspective"].update(yaw=yaw)
     per_frame = refine(app)
     assert max(per_frame) == 1
     assert same_picture(view_pixels(app), in_one_piece(app))
     # an exposure change redraws the composite only (the atlases are kept)
-    app.set_exposure(app.hdr.exposure + 0.5)
+    app.display.set_exposure(app.display.hdr.exposure + 0.5)
     per_frame = refine(app)
     assert set(ref.slices) == {"composite"} and max(per_frame) == 1
     assert same_picture(view_pixels(app), in_one_piece(app))
-    app.set_exposure(app.hdr.exposure - 0.5)
+    app.display.set_exposure(app.display.hdr.exposure - 0.5)
 
 
 def test_a_screenshot_finishes_the_picture_first(app):

@@ -181,14 +181,15 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
     app = App(SIZE, headless=True, predict=model, render=cheap_render, threads=1,
               recent=RecentFiles(tmp_path / "recent.json"))
     errors: list[tuple[str, str]] = []  # (file open, error text) of every error note
-    note = app.note
+    note = app.messages.note
 
     def recording_note(level, text):
         if level == "error":
-            errors.append((app.opening or app.name, text))  # a failed open keeps the scene (and name)
+            # a failed open keeps the scene (and name)
+            errors.append((app.loader.opening or app.doc.name, text))
         note(level, text)
 
-    app.note = recording_note
+    app.messages.note = recording_note
     rng = random.Random(9)
     counts: dict[str, int] = {}
     cpu: dict[str, float] = {}  # CPU seconds (all threads) per kind of action, its frame included
@@ -197,9 +198,9 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
     state = {"file": None}
 
     def size():
-        if app.size is None:  # still loading, or the last file was refused
+        if app.doc.size is None:  # still loading, or the last file was refused
             raise PhyIRError("no panorama is open")
-        return app.size
+        return app.doc.size
 
     def uv():
         H, W = size()
@@ -214,18 +215,19 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
         state["file"] = name
         app.open(tmp_path / name)
         if rng.random() < 0.6:  # else the next actions land while it loads and the model runs
-            assert app.wait_idle(60), app.progress
+            assert app.wait_idle(60), app.loader.progress
             want = files[name]
             if want == "error":
-                assert app.error and name in app.error and "\n" not in app.error, app.error
+                error = app.messages.error
+                assert error and name in error and "\n" not in error, error
             else:
-                assert app.error is None, app.error
+                assert app.messages.error is None, app.messages.error
 
     def do_pin():
         if rng.random() < 0.5:
-            app.click(*xy())
+            app.camera.click(*xy())
         else:
-            app.pin_probe(*uv())
+            app.pins.pin_probe(*uv())
 
     def do_add():
         spec = rng.choice((*PRIMITIVES, str(tmp_path / "tetra.obj")))
@@ -245,7 +247,8 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
 
         H, W = size()
         u, v, _ = pano.points_to_uv(torch.as_tensor(c), H, W)
-        x, y, front = app.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(), app.size)
+        x, y, front = app.camera.view.uv_to_screen(np.array(float(u)), np.array(float(v)), app.view_size(),
+                                                   app.doc.size)
         if not (front and panel.begin_drag(float(x), float(y))):
             raise PhyIRError("the object is not under the mouse")
         for _ in range(rng.randint(1, 4)):
@@ -260,35 +263,36 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
     def canonical():
         """The same state at the baseline and at the end: the scene open, no pins, no objects."""
         app.open(tmp_path / "scene.exr")
-        assert app.wait_idle(60) and app.error is None
+        assert app.wait_idle(60) and app.messages.error is None
         while app.objects.objects:
             app.objects.delete(0)
         while app.pins:
-            app.unpin()
-        app.set_layer("image")
-        app.set_view("equirect")
+            app.pins.unpin()
+        app.display.set_layer("image")
+        app.camera.set_view("equirect")
         app.frame()
 
     actions = {
         "open": (4, do_open),
-        "layer": (12, lambda: app.set_layer(rng.choice(LAYERS))),
-        "truth": (2, lambda: app.set_source(rng.random() < 0.5)),
-        "pan": (8, lambda: app.drag(rng.uniform(-80, 80), rng.uniform(-40, 40))),
-        "zoom": (6, lambda: app.scroll(rng.uniform(-4, 4), *xy())),
-        "fit": (2, lambda: app.fit() if rng.random() < 0.5 else app.one_to_one()),
-        "view": (5, lambda: app.set_view(rng.choice(("equirect", "perspective")))),
-        "look": (3, lambda: app.set_view("perspective", yaw=rng.uniform(-math.pi, math.pi),
+        "layer": (12, lambda: app.display.set_layer(rng.choice(LAYERS))),
+        "truth": (2, lambda: app.display.set_source(rng.random() < 0.5)),
+        "pan": (8, lambda: app.camera.drag(rng.uniform(-80, 80), rng.uniform(-40, 40))),
+        "zoom": (6, lambda: app.camera.scroll(rng.uniform(-4, 4), *xy())),
+        "fit": (2, lambda: app.camera.fit() if rng.random() < 0.5 else app.camera.one_to_one()),
+        "view": (5, lambda: app.camera.set_view(rng.choice(("equirect", "perspective")))),
+        "look": (3, lambda: app.camera.set_view("perspective", yaw=rng.uniform(-math.pi, math.pi),
                                          pitch=rng.uniform(-1.2, 1.2), fov=rng.uniform(40, 110))),
-        "exposure": (3, lambda: app.set_exposure(rng.uniform(-4, 4))),
-        "tonemap": (2, lambda: app.set_tonemap(rng.choice(TONEMAPS))),
-        "colormap": (2, lambda: app.set_colormap(rng.choice(COLORMAPS), rng.choice(list(app.scalar)))),
-        "range": (2, lambda: app.set_range(None) if rng.random() < 0.5
-                  else app.set_range(rng.uniform(0, 1), rng.uniform(1, 5))),
-        "hover": (5, lambda: app.hover_at(*xy())),
+        "exposure": (3, lambda: app.display.set_exposure(rng.uniform(-4, 4))),
+        "tonemap": (2, lambda: app.display.set_tonemap(rng.choice(TONEMAPS))),
+        "colormap": (2, lambda: app.display.set_colormap(rng.choice(COLORMAPS),
+                                                         rng.choice(list(app.display.scalar)))),
+        "range": (2, lambda: app.display.set_range(None) if rng.random() < 0.5
+                  else app.display.set_range(rng.uniform(0, 1), rng.uniform(1, 5))),
+        "hover": (5, lambda: app.camera.hover_at(*xy())),
         "pin": (7, do_pin),
-        "pin exposure": (2, lambda: app.set_pin_exposure(rng.randrange(len(app.pins)) if app.pins else
+        "pin exposure": (2, lambda: app.pins.set_pin_exposure(rng.randrange(len(app.pins)) if app.pins else
                                                          _refuse("no pins"), rng.uniform(-3, 3))),
-        "unpin": (5, lambda: app.unpin(rng.randrange(len(app.pins)) if app.pins else -1)),
+        "unpin": (5, lambda: app.pins.unpin(rng.randrange(len(app.pins)) if app.pins else -1)),
         "add object": (6, do_add),
         "drop object": (2, lambda: app.objects.drop_at(*uv(), pick_object())),
         "drag object": (4, do_drag_object),
@@ -299,7 +303,7 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
         "delete object": (5, lambda: app.objects.delete(pick_object())),
         "fusion": (1, lambda: setattr(app.objects.hook, "fusion", rng.choice(FUSIONS))),
         "export": (2, do_export),
-        "cancel": (1, app.cancel),
+        "cancel": (1, app.images.cancel),
     }
     names = list(actions)
     weights = [actions[n][0] for n in names]
@@ -323,7 +327,7 @@ def test_random_session_of_500_actions(egl, tmp_path, monkeypatch):
             app.objects.delete(0)
         if step % 50 == 0:
             print(f"step {step}: {time.perf_counter() - t0:.1f} s, CPU {time.process_time() - c_start:.1f} s,"
-                  f" {app.name}, RSS {rss_mb():.0f} MB", flush=True)
+                  f" {app.doc.name}, RSS {rss_mb():.0f} MB", flush=True)
         if step == WARMUP - 1:
             canonical()
             base_gl, base_rss = gl.live(), settle_memory()

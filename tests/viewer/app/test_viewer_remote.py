@@ -90,7 +90,8 @@ def test_open_two_files_switch_set_a_layer_and_take_screenshots(app, files, tmp_
         want = 255 * linear_to_srgb(np.array(ALBEDO[f"{name}.exr"]))
         assert img.shape == (H, W, 3) and np.abs(img - want).max() <= 1.5, name
     assert status["current"] == 1 and status["name"] == "b.exr" and status["layer"] == "albedo"
-    assert status["layers"] == ["image", "albedo"] and app.layer == "albedo" and app.current == 1
+    assert status["layers"] == ["image", "albedo"]
+    assert app.display.layer == "albedo" and app.images.current == 1
     assert [(im["name"], im["path"]) for im in status["images"]] == \
         [("a.exr", str(files / "a.exr")), ("b.exr", str(files / "b.exr"))]
 
@@ -113,10 +114,10 @@ def test_status_round_trips_reference_compare_exposure_and_close(app, files):
     during, after, closed, last = drive(app, script)
     assert (during["current"], during["reference"], during["compare"]) == (0, 1, "diff")
     assert during["exposure"] == 1.5
-    assert app.hdr.exposure == 1.5
+    assert app.display.hdr.exposure == 1.5
     assert (after["reference"], after["compare"]) == (None, None)
     assert closed == {"images": 1} and [im["name"] for im in last["images"]] == ["b.exr"]
-    assert last["current"] == 0 and last["name"] == "b.exr" and app.name == "b.exr"
+    assert last["current"] == 0 and last["name"] == "b.exr" and app.doc.name == "b.exr"
 
 
 BAD = [(b"this is not json\n", "bad JSON"),
@@ -163,7 +164,7 @@ def test_bad_commands_get_one_line_errors_and_the_app_keeps_serving(app, files, 
             assert reply["ok"] is False and says in reply["error"], (line, reply)
     assert status["name"] == "a.exr" and status["layer"] == "image" and status["error"] is None
     # the command whose client left still ran (its thread may read it after the others' replies)
-    assert app.serve_until(lambda: (tmp_path / "unread.png").is_file(), 10) and app.name == "a.exr"
+    assert app.serve_until(lambda: (tmp_path / "unread.png").is_file(), 10) and app.doc.name == "a.exr"
 
 
 @pytest.mark.parametrize("value,says", [("0.0.0.0:5151", "only a loopback host may listen"),

@@ -46,14 +46,14 @@ def _run_job(app, truth: PanoScene) -> list[tuple]:
         assert app.wait_idle(60)
     finally:
         app.worker._predict = None
-    assert app.error is None and "rerender" in app.arrays and app.job_frames >= 2
+    assert app.messages.error is None and "rerender" in app.doc.arrays and app.loader.job_frames >= 2
     return app.renderer.first_draws[start:]
 
 
 @pytest.mark.parametrize("size", [(64, 128), (48, 96), (64, 96)], ids=["pot", "npot", "npot-width"])
 def test_a_loading_panorama_draws_no_new_shader_variant(app, size):
-    app.set_layer("image")
-    app.set_view("equirect")
+    app.display.set_layer("image")
+    app.camera.set_view("equirect")
     assert _run_job(app, box_room(*size, variant="viewer")) == []
     # the job drew: the image in the view's cache, copied to the canvas
     drawn = {key[0][0] for key in app.renderer.variants}
@@ -68,22 +68,22 @@ def test_every_layer_view_tone_map_and_a_probe_were_drawn_at_start_up(app):
 
     _run_job(app, box_room(64, 128, variant="viewer"))
     start = len(app.renderer.first_draws)
-    app.pin_probe(40.5, 30.5)  # a marker on the view, the probe image in the panel
+    app.pins.pin_probe(40.5, 30.5)  # a marker on the view, the probe image in the panel
     for view in ("equirect", "perspective"):
-        app.set_view(view)
-        for name in app.available():
-            app.set_layer(name)
+        app.camera.set_view(view)
+        for name in app.doc.available():
+            app.display.set_layer(name)
             app.frame()
-        app.set_layer("image")
+        app.display.set_layer("image")
         for tm in TONEMAPS:
-            app.set_tonemap(tm)
+            app.display.set_tonemap(tm)
             app.frame()
-        app.set_tonemap("srgb")
-    app.set_view("equirect", zoom=4.0)  # nearest-neighbour texels
+        app.display.set_tonemap("srgb")
+    app.camera.set_view("equirect", zoom=4.0)  # nearest-neighbour texels
     app.frame()
-    assert set(app.available()) == set(LAYERS)
+    assert set(app.doc.available()) == set(LAYERS)
     assert app.renderer.first_draws[start:] == []
-    app.unpin()
+    app.pins.unpin()
 
 
 def test_variant_classes_are_what_llvmpipe_compiles_for(egl):
@@ -153,7 +153,7 @@ def test_a_real_job_imports_nothing_in_the_worker(egl, tmp_path):
         sys.addaudithook(hook)
         app.open({str(path)!r})
         ok = app.wait_idle(120)
-        print(json.dumps({{"ok": ok, "error": app.error, "layers": sorted(app.arrays),
+        print(json.dumps({{"ok": ok, "error": app.messages.error, "layers": sorted(app.doc.arrays),
                           "imports": imports, **heap}}))
         app.close()
     """)

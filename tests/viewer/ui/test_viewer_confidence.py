@@ -42,7 +42,8 @@ def test_viewer_info_and_predict_show_the_same_digits(score, tmp_path, capsys, m
     (info,) = (ln for ln in capsys.readouterr().out.splitlines() if "geometry confidence" in ln)
     cli = info.split("geometry confidence:")[1].split()[0]
     predicted = geometry_confidence(scene).split("geometry confidence ")[1].split()[0]
-    app = types.SimpleNamespace(images=[None], compare_mode=None, reference=None, hover=None, size=None,
-                                confidence=score, frame_times=[], busy=False, job_frames=0)
+    ns = types.SimpleNamespace
+    app = ns(images=[None], comparison=ns(mode=None), camera=ns(hover=None),
+             doc=ns(size=None, confidence=score), frame_times=[], loader=ns(busy=False, job_frames=0))
     viewer = status_text(app).split("geometry confidence ")[1].split()[0]
     assert cli == predicted == viewer == format_confidence(score)

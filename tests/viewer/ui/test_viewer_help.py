@@ -38,7 +38,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
     press(app, imgui.Key.h)
     for _ in range(3):  # an auto-resized window takes a frame or two to settle
         app.frame()
-    assert app.gui._show_help
+    assert app.gui.menu.show_help
     win = imgui_window(app, "Keys and mouse")
     x0, y0 = win.pos.x, win.pos.y
     x1, y1 = x0 + win.size.x, y0 + win.size.y
@@ -47,7 +47,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
     right, bottom = x1 - win.window_padding.x, y1 - win.window_padding.y / 2
     assert win.content_size.x <= win.size.x - 2 * win.window_padding.x, "the help is cut at the right"
     assert not win.scrollbar_y, "the help is cut at the bottom"
-    lines = app.gui.help_lines
+    lines = app.gui.menu.help_lines
     assert len(lines) > 30
     for text, x, y in lines:
         size = imgui.calc_text_size(text)
@@ -62,7 +62,7 @@ def test_help_fits_the_window_and_lists_every_object_key(app):
                 and texts[i + 1] == k.help and k.help.strip()]
         assert rows, f"the object key {label} is not in the help"
     press(app, imgui.Key.h)
-    assert not app.gui._show_help
+    assert not app.gui.menu.show_help
 
 
 def test_object_keys_do_what_the_help_says(app):
@@ -71,7 +71,7 @@ def test_object_keys_do_what_the_help_says(app):
 
     from viewer.ui.object_keys import OBJECT_KEYS
 
-    panel = app.objects
+    panel, inserted = app.gui.objects_panel, app.objects
     keys = {(k.key, k.mods): k for k in OBJECT_KEYS}
 
     def hit(key: str, mods: str = "") -> None:
@@ -87,15 +87,15 @@ def test_object_keys_do_what_the_help_says(app):
     assert ("a", "") in keys
     hit("a")
     hit("a")
-    assert len(panel.objects) == 2 and panel.selected == 1
+    assert len(inserted.objects) == 2 and inserted.selected == 1
     hit("n")
-    assert panel.selected == 0
+    assert inserted.selected == 0
     hit("n", "shift")
-    assert panel.selected == 1
+    assert inserted.selected == 1
     hit("d", "ctrl")
-    assert len(panel.objects) == 3 and panel.selected == 2
+    assert len(inserted.objects) == 3 and inserted.selected == 2
     hit("delete", "ctrl")
-    assert len(panel.objects) == 2
+    assert len(inserted.objects) == 2
     gizmo = panel.gizmo_op
     hit("m")
     assert panel.gizmo_op != gizmo
@@ -104,30 +104,30 @@ def test_object_keys_do_what_the_help_says(app):
     hit("p")
     assert not panel.drop_mode
     hit("b")
-    assert not panel.hook.enabled
+    assert not inserted.hook.enabled
     hit("b")
-    assert panel.hook.enabled
+    assert inserted.hook.enabled
     hit("d")  # D alone is the comparison's key, not duplicate
-    assert len(panel.objects) == 2
+    assert len(inserted.objects) == 2
     tested = {("a", ""), ("n", ""), ("n", "shift"), ("d", "ctrl"), ("delete", "ctrl"), ("m", ""), ("p", ""),
               ("b", "")}
     assert set(keys) == tested, "a new object key: test what it does here"
-    while panel.objects:
-        panel.delete(0)
+    while inserted.objects:
+        inserted.delete(0)
 
 
 def test_side_panel_lines_fit_its_width(app):
     """A pinned probe's grid-cell line, the read-out and the file name wrap instead of running off
     the panel's right edge: the panel's content is no wider than the room inside it."""
-    app.pin_probe(100.0, 40.0)
+    app.pins.pin_probe(100.0, 40.0)
     x, y, w, h = app.view_rect()
     s = app.surface.scale
     app.gui.io.add_mouse_pos_event((x + w / 2) / s, (y + h / 2) / s)  # the read-out shows that pixel
     for _ in range(3):
         app.frame()
-    assert app.hover is not None and app.pins[0].block is not None
+    assert app.camera.hover is not None and app.pins[0].block is not None
     panel = imgui_window(app, "##panel")
     room = panel.inner_rect.max.x - panel.inner_rect.min.x - 2 * panel.window_padding.x
     assert panel.content_size.x <= room + 0.5, (panel.content_size.x, room)
     app.gui.io.add_mouse_pos_event(-3.4e38, -3.4e38)
-    app.unpin()
+    app.pins.unpin()

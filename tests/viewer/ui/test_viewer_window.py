@@ -64,17 +64,17 @@ def test_window_app_layers_probe_views(app, scene_file):
 
     sc = io.load_scene(scene_file)
     app.open(scene_file)
-    assert app.wait_idle(60) and app.error is None
+    assert app.wait_idle(60) and app.messages.error is None
     assert app.window is not None and not app.surface.should_close()
     # every layer through its number key
     keys = [imgui.Key._1, imgui.Key._2, imgui.Key._3, imgui.Key._4, imgui.Key._5, imgui.Key._6, imgui.Key._7,
             imgui.Key._8, imgui.Key._9, imgui.Key._0, imgui.Key.minus]
     shots = {}
     for name, key in zip(LAYERS, keys):
-        if name not in app.available():
+        if name not in app.doc.available():
             continue
         press(app, key)
-        assert app.layer == name
+        assert app.display.layer == name
         shots[name] = app.screenshot()
     assert {"image", "depth", "normal", "albedo", "roughness", "metallic", "probes"} <= set(shots)
     x, y, w, h = app.view_rect()
@@ -85,14 +85,14 @@ def test_window_app_layers_probe_views(app, scene_file):
     img = app.screenshot().astype(float)
     H, W = sc.size
     ij = np.array([[20, 30], [64, 100], [100, 200], [40, 230], [70, 10], [110, 128]])
-    px, py, _ = app.view.uv_to_screen(ij[:, 1] + 0.5, ij[:, 0] + 0.5, (w, h))
+    px, py, _ = app.camera.view.uv_to_screen(ij[:, 1] + 0.5, ij[:, 0] + 0.5, (w, h))
     lum = img[(y + py).astype(int), (x + px).astype(int)] @ [0.2126, 0.7152, 0.0722]
     depth = sc.depth[0].numpy()[ij[:, 0], ij[:, 1]]
     assert np.array_equal(np.argsort(lum), np.argsort(depth))
     # a click pins the probe under the mouse
     press(app, imgui.Key._1)
     u0, v0 = 180.5, 50.5
-    cx, cy, _ = app.view.uv_to_screen(np.array(u0), np.array(v0), (w, h))
+    cx, cy, _ = app.camera.view.uv_to_screen(np.array(u0), np.array(v0), (w, h))
     click(app, float(cx), float(cy))
     assert len(app.pins) == 1
     pin = app.pins[0]
@@ -100,7 +100,7 @@ def test_window_app_layers_probe_views(app, scene_file):
     assert pin.probe is not None and pin.position is not None
     app.frame()
     shot = app.screenshot().astype(float)
-    x0, y0, x1, y1 = app.gui.probe_rects[(0, "pred")]
+    x0, y0, x1, y1 = app.gui.side_panel.probe_rects[(0, "pred")]
     s = app.surface.scale
     panel = shot[int(y0 * s) : int(y1 * s), int(x0 * s) : int(x1 * s)]
     assert panel.std() > 3  # the probe's sky gradient is visible
@@ -112,26 +112,26 @@ def test_window_app_layers_probe_views(app, scene_file):
     app.frame()
     io_.add_mouse_button_event(0, True)
     app.frame()
-    centre0 = app.view.center
+    centre0 = app.camera.view.center
     for k in range(1, 6):
         io_.add_mouse_pos_event((x + cx + 10 * k) / s, (y + cy) / s)
         app.frame()
     io_.add_mouse_button_event(0, False)
     app.frame()
-    assert len(app.pins) == 1 and app.view.center[0] < centre0[0] - 10 / app.view.zoom
+    assert len(app.pins) == 1 and app.camera.view.center[0] < centre0[0] - 10 / app.camera.view.zoom
     # V: perspective look-around, the marker follows
     press(app, imgui.Key.v)
-    assert app.view_kind == "perspective"
+    assert app.camera.view_kind == "perspective"
     persp = app.screenshot()
     assert np.abs(persp[y : y + h, x : x + w].astype(int) - shots["image"][y : y + h, x : x + w]).mean() > 3
     press(app, imgui.Key.f)
-    assert app.view_kind == "equirect"
+    assert app.camera.view_kind == "equirect"
     # E raises the exposure by half a stop
-    ev = app.hdr.exposure
+    ev = app.display.hdr.exposure
     press(app, imgui.Key.e)
-    assert app.hdr.exposure == ev + 0.5
+    assert app.display.hdr.exposure == ev + 0.5
     press(app, imgui.Key.e, shift=True)
-    assert app.hdr.exposure == ev
+    assert app.display.hdr.exposure == ev
 
 
 def test_window_resizes_and_drop_opens(app, scene_file):
@@ -149,7 +149,7 @@ def test_window_resizes_and_drop_opens(app, scene_file):
     x, y, w, h = app.view_rect()
     assert x + w <= 900 and y + h <= 560
     app.on_drop([str(scene_file)])
-    assert app.wait_idle(30) and app.path == str(scene_file)
+    assert app.wait_idle(30) and app.doc.path == str(scene_file)
 
 
 def test_idle_window_does_not_redraw(app, scene_file):
@@ -192,12 +192,12 @@ def test_frame_time_of_the_panorama_view(display, panos_dir, capsys):
         a.open(pano_path)
         assert a.wait_idle(60)
         x, y, w, h = a.view_rect()
-        a.set_view("equirect", center=(512.0, 256.0), zoom=1.0)
+        a.camera.set_view("equirect", center=(512.0, 256.0), zoom=1.0)
         for _ in range(3):
             a.frame()
         times = []
         for k in range(20):  # nudge the exposure: every frame redraws the view
-            a.set_exposure(1e-3 * (k % 2))
+            a.display.set_exposure(1e-3 * (k % 2))
             times.append(a.frame())
         times.sort()
         misses = a.renderer.cache_misses
@@ -269,11 +269,11 @@ def test_f12_saves_a_screenshot_next_to_the_file(app, scene_file):
     from imgui_bundle import imgui
 
     app.open(scene_file)
-    assert app.wait_idle(60) and app.error is None
-    out = scene_file.with_name(f"box.{app.layer}.png")
+    assert app.wait_idle(60) and app.messages.error is None
+    out = scene_file.with_name(f"box.{app.display.layer}.png")
     out.unlink(missing_ok=True)
     press(app, imgui.Key.f12)  # was imgui's "Forgot to call Render()" assertion: a frame inside a frame
-    assert app.error is None, app.error
+    assert app.messages.error is None, app.messages.error
     assert out.is_file() and any(m.text == f"saved {out}" for m in app.messages)
     from PIL import Image
 
@@ -288,7 +288,7 @@ def test_screenshots_do_not_read_the_window_systems_buffer(app, scene_file, monk
     from OpenGL import GL as gl
 
     app.open(scene_file)
-    assert app.wait_idle(60) and app.error is None
+    assert app.wait_idle(60) and app.messages.error is None
     black = lambda x, y, w, h, *a: bytes(3 * w * h)  # noqa: E731 - a window system that lost the frame
     monkeypatch.setattr(gl, "glReadPixels", black)
     shot = app.screenshot()
