@@ -5,7 +5,7 @@ synth`` folders, e.g. the held-out halls of ``python -m benchmarks.halls`` and `
 ``phyir.predict`` gives the scene, :func:`phyir.evaluation.real.scene_confidence` its confidence and
 consistency, and the median-aligned AbsRel measures its depth against the truth. Prints Spearman's
 rank correlation of each with the AbsRel, per source and over all rooms (a confidence that tracks the
-error correlates negatively, the consistency positively).
+error correlates negatively, the consistency and the room's size positively).
 
     python -m benchmarks.confidence_vs_error --scans ../shared/real-depth \\
         --synth data/halls/20000-128x256 data/h128
@@ -39,7 +39,7 @@ def row(source, truth: torch.Tensor) -> dict[str, float]:
     scene = predict(source, outputs=("depth", "normal"), probes=None)
     c = scene_confidence(scene)
     return {"abs_rel": aligned_abs_rel(scene.depth, truth), "confidence": float(c["confidence"]),
-            "consistency_deg": float(c["consistency_deg"])}
+            "consistency_deg": float(c["consistency_deg"]), "far_m": float(c["far_m"])}
 
 
 def rooms(scans: Path | None, synth: list[Path]):
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         r = row(image, truth)
         rows.setdefault(source, []).append(r)
         print(f"{source}/{name}: AbsRel {r['abs_rel']:.3f}, confidence {r['confidence']:.3f}, "
-              f"normals vs depth {r['consistency_deg']:.1f}°", flush=True)
+              f"normals vs depth {r['consistency_deg']:.1f}°, room size {r['far_m']:.1f} m", flush=True)
     if not rows:
         print("no rooms", file=sys.stderr)
         return 2
@@ -73,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
         err = [r["abs_rel"] for r in rs]
         print(f"{source} ({len(rs)} rooms): Spearman with AbsRel: confidence "
               f"{spearman([r['confidence'] for r in rs], err):.2f}, normals vs depth "
-              f"{spearman([r['consistency_deg'] for r in rs], err):.2f}")
+              f"{spearman([r['consistency_deg'] for r in rs], err):.2f}, room size "
+              f"{spearman([r['far_m'] for r in rs], err):.2f}")
     return 0
 
 

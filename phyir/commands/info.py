@@ -87,12 +87,12 @@ def confidence_line(path: str) -> str:
     import warnings
 
     from phyir import io
-    from phyir.evaluation.real import scene_confidence
+    from phyir.evaluation.real import flag_reason, scene_confidence
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # repairs were reported by the layer table above
         c = scene_confidence(io.load_scene(path))
-    verdict = "flagged: implausible geometry" if c["flagged"] else "plausible"
+    verdict = f"flagged: {flag_reason(c)}" if c["flagged"] else "plausible"
     return (f"  geometry confidence: {format_confidence(float(c['confidence']))} ({verdict}; nadir "
             f"floor-like {float(c['nadir_up']):.2f}, normals vs depth {float(c['consistency_deg']):.0f}°, "
-            f"camera height {float(c['camera_height']):.2f} m)")
+            f"room size {float(c['far_m']):.1f} m, camera height {float(c['camera_height']):.2f} m)")

@@ -99,14 +99,14 @@ def geometry_confidence(scene) -> str:
     """Record the scene's geometry confidence in its meta (the EXR header) and say it in words:
     "; geometry confidence 0.96", with a warning when it is flagged; "" without depth and normals."""
     from phyir.commands.info import format_confidence
-    from phyir.evaluation.real import scene_confidence
+    from phyir.evaluation.real import flag_reason, scene_confidence
 
     if scene.depth is None or scene.normal is None:
         return ""
     c = scene_confidence(scene)
     scene.meta["predict.confidence"] = f"{float(c['confidence']):.3f}"
     text = f"; geometry confidence {format_confidence(float(c['confidence']))}"
-    return text + " (flagged: the room's geometry is implausible, check it)" if c["flagged"] else text
+    return text + f" (flagged: {flag_reason(c)}; check it)" if c["flagged"] else text
 
 
 def run(args: argparse.Namespace) -> int:

@@ -97,7 +97,7 @@ class WorkerEvents:
         """How far to trust the scene's geometry (phyir.evaluation.real.scene_confidence), for the status
         bar; a warning when it is flagged."""
         from phyir.commands.info import format_confidence
-        from phyir.evaluation.real import scene_confidence
+        from phyir.evaluation.real import flag_reason, scene_confidence
 
         sc = doc.scene
         doc.confidence = None
@@ -106,10 +106,11 @@ class WorkerEvents:
         c = scene_confidence(sc)
         doc.confidence = float(c["confidence"])
         if c["flagged"]:
-            self.messages.note("warning", f"geometry confidence {format_confidence(doc.confidence)}: the "
-                                          f"floor below the camera is {100 * float(c['nadir_up']):.0f}% "
-                                          f"floor-like and normals and depth disagree by "
-                                          f"{float(c['consistency_deg']):.0f}°; insertions may be off")
+            self.messages.note("warning", f"geometry confidence {format_confidence(doc.confidence)} "
+                                          f"({flag_reason(c)}): the floor below the camera is "
+                                          f"{100 * float(c['nadir_up']):.0f}% floor-like, normals and "
+                                          f"depth disagree by {float(c['consistency_deg']):.0f}°, the room "
+                                          f"reaches {float(c['far_m']):.0f} m; insertions may be off")
 
     def _on_gt(self, doc: Document, event: GroundTruth) -> None:
         gt = event.scene

@@ -64,7 +64,9 @@ def test_exact_depth_and_normals_are_consistent_and_confident():
     s = box_scene()
     assert R.consistency_deg(s) < 3.0  # only the wall creases differ (central differences)
     c = R.scene_confidence(s)
-    assert c["confidence"] > 0.9 and not c["flagged"]
+    # all that is left is the room-size factor (the box reaches 4.2 m: 0.89)
+    size_factor = 1 / (1 + (c["far_m"] / R.FAR_SCALE_M) ** 2)
+    assert size_factor > 0.85 and c["confidence"] > 0.99 * size_factor and not c["flagged"]
     assert set(R.plausibility(s)) <= set(c)
 
 
@@ -267,6 +269,22 @@ def test_panorama_files_takes_files_and_folders(tmp_path):
     got = R.panorama_files([single, tmp_path / "d"])
     assert [p.name for p in got] == ["c.hdr", "a.exr", "b.hdr"]  # as given; a folder sorted, no temporaries
     assert R.panorama_files(tmp_path / "d") == got[1:]
+
+
+def test_confidence_falls_with_the_rooms_size():
+    """The same box room four times as large: plausibility and consistency unchanged, its size four
+    times, its confidence divided by exactly the ratio of the size factors (a hall reads lower)."""
+    s = box_scene()
+    small, large = R.scene_confidence(s), R.scene_confidence(s.replace(depth=s.depth * 4))
+    assert large["far_m"] == pytest.approx(4 * small["far_m"], rel=1e-5)
+    assert large["consistency_deg"] == pytest.approx(small["consistency_deg"], abs=1e-6)
+    factor = (1 + (small["far_m"] / R.FAR_SCALE_M) ** 2) / (1 + (large["far_m"] / R.FAR_SCALE_M) ** 2)
+    assert large["confidence"] == pytest.approx(small["confidence"] * factor, rel=1e-9)
+    assert 3 < small["far_m"] < 5 and small["confidence"] > 0.85 and large["confidence"] < 0.4
+    assert large["flagged"] and R.flag_reason(large) == "a 17 m space, its depth may be well off"
+    collapsed = s.normal.clone()
+    collapsed[:] = torch.tensor([0.0, 1.0, 0.0])[:, None, None]
+    assert R.flag_reason(R.scene_confidence(s.replace(normal=collapsed))) == "implausible geometry"
 
 
 def test_confidence_falls_as_normals_and_depth_disagree():

@@ -31,8 +31,8 @@ def test_viewer_info_and_predict_show_the_same_digits(score, tmp_path, capsys, m
     from phyir.evaluation import real
     from viewer.ui.status_bar import status_text
 
-    facts = {"nadir_up": 1.0, "consistency_deg": 20.0, "camera_height": 1.5, "confidence": score,
-             "flagged": score < real.FLAG_BELOW}
+    facts = {"nadir_up": 1.0, "consistency_deg": 20.0, "far_m": 4.0, "camera_height": 1.5,
+             "confidence": score, "flagged": score < real.FLAG_BELOW}
     monkeypatch.setattr(real, "scene_confidence", lambda scene: dict(facts))
     depth, normal = box_room(16, 32, (-2.0, -1.5, -3.0), (2.5, 1.3, 2.0))
     scene = PanoScene(image=torch.full((3, 16, 32), 0.5), depth=depth.float(), normal=normal.float())
