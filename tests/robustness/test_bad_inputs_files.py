@@ -604,18 +604,19 @@ def test_sighup_ends_a_command_like_sigterm(tmp_path):
     """SIGHUP (the terminal closed) killed commands mid-write, leaving temporaries; it is now
     :class:`Terminated` (exit 129) and deferred during a set's renames, like SIGTERM."""
     target = tmp_path / "a.exr"
-    with sigterm_raises(), pytest.raises(Terminated) as e, AtomicSet() as s:
-        Path(s.add(target)).write_bytes(b"new")
-        os.kill(os.getpid(), signal.SIGHUP)
-        time.sleep(1)
-    assert e.value.signum == signal.SIGHUP and not target.exists() and not temporaries(tmp_path)
-    assert signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # nohup: stays ignored
+    inherited = signal.signal(signal.SIGHUP, signal.SIG_DFL)  # the suite itself may run under nohup
     try:
+        with sigterm_raises(), pytest.raises(Terminated) as e, AtomicSet() as s:
+            Path(s.add(target)).write_bytes(b"new")
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(1)
+        assert e.value.signum == signal.SIGHUP and not target.exists() and not temporaries(tmp_path)
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)  # nohup: stays ignored
         with sigterm_raises():
             assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
     finally:
-        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, inherited)
 
 
 def test_a_closed_stdout_ends_quietly(pano):
