@@ -63,6 +63,8 @@ def slug(key: str) -> str:
 
 def _limits(fsize: int | None):
     def pre() -> None:
+        # a command meets SIGHUP as from a closing terminal, even when the corpus runs under nohup
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
         if fsize is not None:
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
     return pre
