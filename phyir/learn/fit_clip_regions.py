@@ -5,7 +5,8 @@ is never read) is photographed by the evaluation's camera (:func:`phyir.learn.ca
 median to 0.18, clipped, 8 bits; :data:`EXPOSURES` can add others); every clipped region gives its
 features and its true mean luminance over the copy's median. A ridge regression of the log of that
 on the features, each region weighted by its solid angle (the big ones hold the energy), gives the
-model.
+model; a second, each region counted once, fitted on the regions under :data:`SMALL_BELOW_SR`, gives
+their law (most clipped regions are small and barely above the clip).
 
     python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --out phyir/assets/clip_regions.json
 """
@@ -26,6 +27,7 @@ from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
 
 EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
 RIDGE = 3.0
+SMALL_BELOW_SR = 0.01  # regions under this solid angle get the law fitted by count (RegionModel)
 
 
 def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
@@ -53,8 +55,8 @@ def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[flo
     return float(beta[0]), tuple(float(b) for b in beta[1:])
 
 
-def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES,
-              ridge: float = RIDGE) -> RegionModel:
+def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge: float = RIDGE,
+              small_below_sr: float = SMALL_BELOW_SR) -> RegionModel:
     from phyir.io import load_panorama
 
     X, y, w = [], [], []
@@ -65,7 +67,11 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES,
             X.append(f), y.append(t), w.append(a)
     X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
     intercept, coef = fit(X_, y_, w_, ridge)
-    return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge)
+    small = w_ < small_below_sr
+    small_intercept, small_coef = fit(X_[small], y_[small], torch.ones(int(small.sum()), dtype=torch.float64),
+                                      ridge) if int(small.sum()) > len(FEATURES) else (0.0, ())
+    return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge,
+                       small_below_sr if small_coef else 0.0, small_intercept, small_coef)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,8 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     model = fit_model(paths)
     model.save(a.out)
     terms = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.coef, model.features))
+    small = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.small_coef, model.features))
     print(f"{a.out}: {model.regions} regions of {len(paths)} panoramas: log(L/median) = "
-          f"{model.intercept:.3f} {terms}")
+          f"{model.intercept:.3f} {terms}; under {model.small_below_sr} sr: "
+          f"{model.small_intercept:.3f} {small}")
     return 0
 
 

@@ -5,14 +5,16 @@ written in its surroundings: its solid angle, where it sits (a ceiling lamp, a w
 horizon), how bright the unclipped ring around it is (the falloff of a bright source over the wall
 and the glow at its edge), and whether all three channels clipped (white) or one (coloured light).
 :class:`RegionModel` maps those :data:`FEATURES` to the log of the region's true mean luminance over
-the panorama's median, a ridge regression fitted on real HDR panoramas photographed by the
-evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
-``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery` applies it.
+the panorama's median: ridge regressions (one law for big regions, one for small ones) fitted on
+real HDR panoramas photographed by the evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the
+shipped coefficients are ``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery`
+applies it.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,7 +34,12 @@ MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json
 
 @dataclass(frozen=True)
 class RegionModel:
-    """log(region mean luminance / panorama median) = intercept + Σ coef · feature."""
+    """log(region mean luminance / panorama median) = intercept + Σ coef · feature.
+
+    With ``small_coef``, regions under ``small_below_sr`` steradians take a second law,
+    ``small_intercept + Σ small_coef · feature``: the main law is fitted with each region weighted by
+    its solid angle (the big regions hold the light), which overshoots the many small regions that
+    are barely above the clip; the second is fitted with every small region counted once."""
 
     intercept: float
     coef: tuple[float, ...]
@@ -40,10 +47,18 @@ class RegionModel:
     fitted_on: tuple[str, ...] = ()
     regions: int = 0
     ridge: float = 0.0
+    small_below_sr: float = 0.0
+    small_intercept: float = 0.0
+    small_coef: tuple[float, ...] = ()
 
     def log_gain(self, feats: Tensor) -> Tensor:
         """[n] predicted log(mean luminance / median) of regions with features ``feats [n, F]``."""
-        return self.intercept + feats.double() @ torch.tensor(self.coef, dtype=torch.float64)
+        f = feats.double()
+        out = self.intercept + f @ torch.tensor(self.coef, dtype=torch.float64)
+        if not self.small_coef:
+            return out
+        small = self.small_intercept + f @ torch.tensor(self.small_coef, dtype=torch.float64)
+        return torch.where(f[:, FEATURES.index("log_area")] < math.log(self.small_below_sr), small, out)
 
     def save(self, path: str | os.PathLike) -> None:
         from phyir.io import atomic_write
@@ -59,8 +74,11 @@ class RegionModel:
         except FileNotFoundError:
             return None
         m = RegionModel(float(d["intercept"]), tuple(float(c) for c in d["coef"]), tuple(d["features"]),
-                        tuple(d.get("fitted_on", ())), int(d.get("regions", 0)), float(d.get("ridge", 0.0)))
-        return m if m.features == FEATURES and len(m.coef) == len(FEATURES) else None
+                        tuple(d.get("fitted_on", ())), int(d.get("regions", 0)), float(d.get("ridge", 0.0)),
+                        float(d.get("small_below_sr", 0.0)), float(d.get("small_intercept", 0.0)),
+                        tuple(float(c) for c in d.get("small_coef", ())))
+        sizes = {len(m.coef)} | ({len(m.small_coef)} if m.small_coef else set())
+        return m if m.features == FEATURES and sizes == {len(FEATURES)} else None
 
 
 def _dilate(mask: Tensor, r: int) -> Tensor:

@@ -68,3 +68,25 @@ def test_recovery_brings_the_region_to_the_models_luminance(tmp_path):
     model.save(tmp_path / "m.json")
     assert RegionModel.load(tmp_path / "m.json") == model
     assert recover_clipped(ldr, model=None)[1].method == "gain"
+
+
+def test_small_regions_take_their_own_law(tmp_path):
+    """Regions under ``small_below_sr`` take the small-region law, the rest the main one; the laws
+    travel through the JSON file."""
+    log_area = FEATURES.index("log_area")
+    feats = torch.zeros(2, len(FEATURES), dtype=torch.float64)
+    feats[:, log_area] = torch.tensor([math.log(0.002), math.log(0.05)])
+    model = RegionModel(math.log(40.0), (0.0,) * len(FEATURES), small_below_sr=0.01,
+                        small_intercept=math.log(2.0), small_coef=(0.0,) * len(FEATURES))
+    want = torch.tensor([math.log(2.0), math.log(40.0)], dtype=torch.float64)
+    assert torch.allclose(model.log_gain(feats), want)
+    model.save(tmp_path / "m.json")
+    assert RegionModel.load(tmp_path / "m.json") == model
+    one_law = RegionModel(math.log(40.0), (0.0,) * len(FEATURES))
+    assert torch.allclose(one_law.log_gain(feats), torch.full((2,), math.log(40.0), dtype=torch.float64))
+
+
+def test_the_shipped_model_has_both_laws():
+    model = RegionModel.load()
+    assert model is not None and model.small_below_sr > 0 and len(model.small_coef) == len(FEATURES)
+    assert len(model.fitted_on) == 15 and not any("colorful_studio" in f for f in model.fitted_on)
