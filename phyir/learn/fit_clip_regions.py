@@ -27,7 +27,7 @@ from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
 
 EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
 RIDGE = 3.0
-SMALL_BELOW_SR = 0.01  # regions under this solid angle get the law fitted by count (RegionModel)
+SMALL_BELOW_SR = 0.03  # regions under this solid angle get the law fitted by count (RegionModel)
 
 
 def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
