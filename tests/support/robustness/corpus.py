@@ -96,7 +96,9 @@ def _wait(pid: int, deadline: float, trigger=None) -> tuple[int | None, float]:
 def execute(case, folder: Path, logs: Path) -> Result:
     out_path, err_path = logs / f"{slug(case.key)}.out", logs / f"{slug(case.key)}.err"
     argv = case.render(folder)
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", **case.env}
+    # the commands are installed scripts: the PYTHONPATH that finds this driver (tests/) would make
+    # the test folders tests/phyir and tests/viewer shadow the packages
+    env = {**{k: v for k, v in os.environ.items() if k != "PYTHONPATH"}, "PYTHONUNBUFFERED": "1", **case.env}
     stdin = subprocess.PIPE if case.stdin is not None else subprocess.DEVNULL
     with open(out_path, "wb") as fo, open(err_path, "wb") as fe:
         t0 = time.monotonic()
