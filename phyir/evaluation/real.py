@@ -119,29 +119,36 @@ def _norm0(x: Tensor) -> Tensor:
     return torch.sqrt((x * x).sum(0, keepdim=True)).clamp_min(1e-12)
 
 
+def _measured(layer: Tensor) -> Tensor:
+    """A layer ``[C,H,W]`` area-resized to at most :data:`CONSISTENCY_SIZE` (in float32: in float64 a
+    360 camera's layer is 400 MB), as the geometry facts below read it."""
+    return pano.resize_area(layer.float(), *CONSISTENCY_SIZE) if layer.shape[-2] > CONSISTENCY_SIZE[0] \
+        else layer
+
+
 def consistency_deg(scene: PanoScene) -> float:
     """Mean angle between the predicted normals and those of the predicted depth (module doc).
 
     Both are area-resized to at most :data:`CONSISTENCY_SIZE` first, so the number measures the
     geometry rather than the guided upsampling's pixel-scale texture, and is the same whatever the
     input's resolution (at 1k it reads ~4 degrees more on the same prediction)."""
-    H, W = scene.size
-    depth, normal = scene.depth, scene.normal
-    if H > CONSISTENCY_SIZE[0]:  # resized in float32: in float64 a 360 camera's layer is 400 MB
-        H, W = CONSISTENCY_SIZE
-        depth, normal = pano.resize_area(depth.float(), H, W), pano.resize_area(normal.float(), H, W)
-    depth, normal = depth.double(), normal.double()
+    return _consistency(_measured(scene.depth), _measured(scene.normal))
+
+
+def _consistency(depth: Tensor, normal: Tensor) -> float:
+    H, W = depth.shape[-2:]
     band = _lat_deg(H, W).abs() < CONSISTENCY_LAT
-    return float(angle_deg(normal, central_normals(depth))[band].mean())
+    return float(angle_deg(normal.double(), central_normals(depth.double()))[band].mean())
 
 
 def far_depth(scene: PanoScene) -> float:
     """The room's size: the :data:`FAR_QUANTILE` quantile of the depth over the panorama's pixels
     (area-resized to at most :data:`CONSISTENCY_SIZE` first, as :func:`consistency_deg`)."""
-    depth = scene.depth.float()
-    if scene.size[0] > CONSISTENCY_SIZE[0]:
-        depth = pano.resize_area(depth, *CONSISTENCY_SIZE)
-    return float(torch.quantile(depth.flatten(), FAR_QUANTILE))
+    return _far(_measured(scene.depth))
+
+
+def _far(depth: Tensor) -> float:
+    return float(torch.quantile(depth.float().flatten(), FAR_QUANTILE))
 
 
 def scene_confidence(scene: PanoScene) -> dict[str, float | bool]:
@@ -161,7 +168,8 @@ def scene_confidence(scene: PanoScene) -> dict[str, float | bool]:
     ``flagged`` (confidence < :data:`FLAG_BELOW`).
     """
     out: dict[str, float | bool] = dict(plausibility(scene))
-    c, far = consistency_deg(scene), far_depth(scene)
+    depth = _measured(scene.depth)  # read once by both facts
+    c, far = _consistency(depth, _measured(scene.normal)), _far(depth)
     conf = float(out["nadir_up"]) / (1 + (c / CONSISTENCY_SCALE_DEG) ** 2) / (1 + (far / FAR_SCALE_M) ** 2)
     out |= {"consistency_deg": c, "far_m": far, "confidence": conf, "flagged": conf < FLAG_BELOW}
     return out
