@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from collections import Counter
-from pathlib import Path
 
 import pytest
 from support.robustness import corpus
@@ -31,10 +29,8 @@ def test_a_slice_of_the_corpus_runs_clean(tmp_path):
     # the driver runs in its own small interpreter: a command's peak memory is read from wait4, and a
     # child forked from this test process (torch loaded, GBs by the end of a suite) would report ours
     out = tmp_path / "corpus.json"
-    tests = str(Path(corpus.__file__).resolve().parents[2])
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (tests, os.environ.get("PYTHONPATH"))))}
     argv = [a for key in SLICE for a in ("--only", key)] + ["--json", str(out)]
-    run = subprocess.run([sys.executable, "-m", "support.robustness.corpus", *argv], env=env,
+    run = subprocess.run([sys.executable, "-m", "support.robustness.corpus", *argv], env=corpus.support_env(),
                          capture_output=True, text=True, timeout=600)
     doc = json.loads(out.read_text())
     outcomes = {c["key"]: c["outcome"] for c in doc["cases"]}

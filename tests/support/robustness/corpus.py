@@ -56,6 +56,13 @@ class Result:
     extra: dict = field(default_factory=dict)
 
 
+def support_env() -> dict[str, str]:
+    """This environment with the folder holding ``support/`` (tests/) first on PYTHONPATH: what a
+    child interpreter running ``-m support.robustness...`` needs."""
+    tests = str(Path(__file__).resolve().parents[2])
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (tests, os.environ.get("PYTHONPATH"))))}
+
+
 def slug(key: str) -> str:
     """A case's key as a file name (keys hold option values: '/', spaces, ...)."""
     return re.sub(r"[^\w.=+-]", "_", key)
@@ -204,8 +211,7 @@ def main(argv: list[str] | None = None) -> int:
             print(c.key)
         return 0
     t_all = time.monotonic()
-    tests = str(Path(__file__).resolve().parents[2])  # the folder holding support/, for the child
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (tests, os.environ.get("PYTHONPATH"))))}
+    env = support_env()
     subprocess.run([sys.executable, "-m", "support.robustness.inputs", str(base)], check=True, timeout=600,
                    env=env)
     logs = root / "logs"
