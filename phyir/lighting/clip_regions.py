@@ -82,9 +82,10 @@ class RegionModel:
 
 
 def _dilate(mask: Tensor, r: int) -> Tensor:
-    """A boolean [H,W] mask grown by ``r`` pixels (wrapping in longitude)."""
-    x = F.pad(mask[None, None].float(), (r, r, 0, 0), mode="circular")
-    return F.max_pool2d(x, 2 * r + 1, 1, padding=(r, 0))[0, 0] > 0
+    """A boolean [H,W] mask grown by ``r`` pixels (wrapping in longitude): a square's maximum, taken
+    along the rows, then the columns (the same result, a fraction of the work)."""
+    x = F.max_pool2d(F.pad(mask[None, None].float(), (r, r, 0, 0), mode="circular"), (1, 2 * r + 1), 1)
+    return F.max_pool2d(x, (2 * r + 1, 1), 1, padding=(r, 0))[0, 0] > 0
 
 
 def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Tensor]]:
