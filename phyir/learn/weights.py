@@ -201,6 +201,11 @@ def load_into(model, path: str | os.PathLike, _read: tuple | None = None) -> Non
     want = model.state_dict()
     name = arch.get("size", "?") if isinstance(arch, dict) else "?"
     check_tensors(path, tensors, want, str(name), model.config.size)
+    _copy_in(model, tensors, want)
+
+
+def _copy_in(model, tensors: dict[str, torch.Tensor], want: dict[str, torch.Tensor]) -> None:
+    """Load checked ``tensors`` into ``model``, each cast to the dtype of ``want``'s."""
     model.load_state_dict({k: v.to(want[k].dtype) for k, v in tensors.items()})
 
 
@@ -214,9 +219,10 @@ def load_model(path: str | os.PathLike | None = None, device: str | torch.device
     path = Path(path) if path is not None else default_weights_path()
     tensors, arch = read_weights(path)
     config = model_config(path, arch)
-    check_tensors(path, tensors, expected_tensors(config), config.size, config.size)
+    want = expected_tensors(config)
+    check_tensors(path, tensors, want, config.size, config.size)
     model = PhyIRModel(config)
-    load_into(model, path, (tensors, arch))
+    _copy_in(model, tensors, want)  # (checked against the same architecture just above)
     return model.to(device).eval()
 
 

@@ -231,7 +231,7 @@ class DepthSurface:
         """Panorama radiance [3,M] at surface points [3,M], area-averaged over ``footprint`` [M]: the
         solid angle (as seen by the camera) each look-up should cover.  Trilinear in the mip levels."""
         H0, W0 = self.mips[0].shape[-2], self.mips[0].shape[-1] - 2
-        u, v, _ = pano.points_to_uv(points, H0, W0, dim=0)
+        u, v = pano.dir_to_uv(points, H0, W0, dim=0)  # (the distance is not needed)
         lat = math.pi / 2 - math.pi * v / H0
         pix = (2 * math.pi / W0) * (math.pi / H0) * torch.cos(lat).clamp_min(1.0 / H0)
         level = (0.5 * torch.log2(footprint.clamp_min(1e-30) / pix)).clamp(0, len(self.mips) - 1)
