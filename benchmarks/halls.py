@@ -33,17 +33,22 @@ def hall_indices(seed: int, start: int, stop: int) -> list[int]:
     return [i for i in range(start, stop) if generate_room(np.random.default_rng([seed, i])).hall]
 
 
-def rendered_halls(cache: Path, seed: int, start: int, stop: int, size: tuple[int, int]) -> list[Path]:
-    """The halls' scene files in ``cache``, rendering the missing ones (8 spp, no probes)."""
+def render_rooms(cache: Path, seed: int, indices: list[int], size: tuple[int, int]) -> list[Path]:
+    """The rooms' scene files in ``cache``, rendering the missing ones (8 spp, no probes)."""
     cache.mkdir(parents=True, exist_ok=True)
     settings = DatasetConfig(seed=seed, size=size, probe_grid=None, spp=8).settings()
     paths = []
-    for i in hall_indices(seed, start, stop):
+    for i in indices:
         path = cache / scene_name(i)
         if not path.exists():
             save_scene(generate_scene(seed, i, settings), path)
         paths.append(path)
     return paths
+
+
+def rendered_halls(cache: Path, seed: int, start: int, stop: int, size: tuple[int, int]) -> list[Path]:
+    """The halls among rooms START:STOP (:func:`render_rooms`)."""
+    return render_rooms(cache, seed, hall_indices(seed, start, stop), size)
 
 
 def hall_row(path: Path, weights: str | None) -> dict[str, float]:

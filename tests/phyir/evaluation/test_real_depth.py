@@ -173,3 +173,23 @@ def test_eval_scans_end_to_end(tmp_path, capsys):
     with Image.open(sheet) as im:
         assert im.size[0] > 4 * 256 and im.size[1] > 2 * 128
     assert "median" in capsys.readouterr().out
+
+
+def test_a_synthetic_room_written_as_a_scan_reads_back(tmp_path):
+    """benchmarks.synthetic_scans: the depth comes back exactly through the scan reader, the image
+    as the evaluation camera's 8-bit copy (its median at the auto-exposure key)."""
+    from support.scenes import box_room
+
+    from benchmarks.synthetic_scans import write_scan as write_room_scan
+    from phyir.color import luminance
+    from phyir.learn.camera import AUTO_EXPOSURE_KEY, ldr_copy
+
+    scene = box_room(H, W)
+    io.save_scene(scene, tmp_path / "room.exr")
+    write_room_scan(tmp_path / "room.exr", tmp_path / "scans" / "room")
+    (scan,) = S.find_scans(tmp_path / "scans")
+    assert torch.equal(S.read_depth(scan)[0], scene.depth.float()[0])
+    rgb = io.load_scene(scan.image).image
+    want, _ = ldr_copy(scene.image)
+    assert torch.allclose(rgb, want, atol=1e-6)
+    assert abs(float(luminance(rgb).median()) - AUTO_EXPOSURE_KEY) < 0.02
