@@ -44,22 +44,19 @@ def _gain(ldr: Tensor) -> Tensor:
     return recover_clipped(ldr, model=None)[0]
 
 
-def _regions(ldr: Tensor) -> Tensor:
-    from phyir.lighting.hdr_recovery import recover_clipped
-
-    return recover_clipped(ldr, model="shipped")[0]
-
-
-def methods(clipnet: str | os.PathLike | None = None) -> dict[str, Callable[[Tensor], Tensor]]:
+def methods(clipnet: str | os.PathLike | None = None,
+            region_model=None) -> dict[str, Callable[[Tensor], Tensor]]:
     """The recoveries measured: naive, gain (one calibrated gain per region), regions (the shipped
-    :class:`phyir.lighting.clip_regions.RegionModel`, where present) and, where its weights are
-    present (``clipnet``, default the shipped ones), clipnet."""
+    :class:`phyir.lighting.clip_regions.RegionModel` where present, or ``region_model``) and, where
+    its weights are present (``clipnet``, default the shipped ones), clipnet."""
     from phyir.lighting.clip_regions import RegionModel
+    from phyir.lighting.hdr_recovery import recover_clipped
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
     out = {"naive": _naive, "gain": _gain}
-    if RegionModel.load() is not None:
-        out["regions"] = _regions
+    region_model = region_model or RegionModel.load()
+    if region_model is not None:
+        out["regions"] = lambda ldr: recover_clipped(ldr, model=region_model)[0]
     model = load_clipnet(clipnet)
     if model is not None:
         out["clipnet"] = lambda ldr: recover(ldr, model)[0]
@@ -94,16 +91,17 @@ def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, floa
     return out
 
 
-def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None = None
-                      ) -> dict[str, dict[str, float]]:
-    """``{method: metrics}`` of one HDR panorama (module doc); ``clipnet``: weights to measure."""
+def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None = None,
+                      region_model=None) -> dict[str, dict[str, float]]:
+    """``{method: metrics}`` of one HDR panorama (module doc); ``clipnet``: weights to measure,
+    ``region_model``: a :class:`phyir.lighting.clip_regions.RegionModel` instead of the shipped one."""
     from phyir.io import load_panorama
     from phyir.learn.camera import ldr_copy
 
     hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
     ldr, scale = ldr_copy(hdr)
     truth = hdr * scale
-    envs = {name: fn(ldr) for name, fn in methods(clipnet).items()}
+    envs = {name: fn(ldr) for name, fn in methods(clipnet, region_model).items()}
     stack = torch.stack([pano.resize_area(e.float(), *RL.INTEGRATION_SIZE) for e in (truth, *envs.values())])
     rows: dict[str, dict[str, float]] = {name: {} for name in envs}
     for mat in RL.MATERIALS:

@@ -3,10 +3,12 @@
 Each panorama of the training split (:func:`phyir.learn.ldr_pairs.hdr_files`: the validation split
 is never read) is photographed by the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
 median to 0.18, clipped, 8 bits; :data:`EXPOSURES` can add others); every clipped region gives its
-features and its true mean luminance over the copy's median. A ridge regression of the log of that
-on the features, each region weighted by its solid angle (the big ones hold the energy), gives the
-model; a second, each region counted once, fitted on the regions under :data:`SMALL_BELOW_SR`, gives
-their law (most clipped regions are small and barely above the clip).
+features and the true mean luminance of its white core (where all three channels clipped) over the
+copy's median. A ridge regression of the log of that on the features, each region weighted by its
+core's solid angle (the big ones hold the energy), gives the model; a second, each region counted
+once, fitted on the regions under :data:`SMALL_BELOW_SR`, gives their law (most clipped regions are
+small and barely above the clip). The partly clipped pixels' ``partial_gain`` is their true energy
+over what :func:`phyir.lighting.clip_regions.fill_partial` gives them, summed over the panoramas.
 
     python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --out phyir/assets/clip_regions.json
 """
@@ -14,16 +16,18 @@ their law (most clipped regions are small and barely above the clip).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from phyir import pano
 from phyir.color import luminance
 from phyir.learn.camera import ldr_copy
-from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features, region_means
-from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
+from phyir.lighting.clip_regions import FEATURES, RegionModel, fill_partial, region_features, region_means
+from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, white_cores
 
 EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
 RIDGE = 3.0
@@ -31,18 +35,30 @@ SMALL_BELOW_SR = 0.03  # regions under this solid angle get the law fitted by co
 
 
 def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
-    """(features [n,F], log(true mean luminance / median) [n], solid angle [n]) of the clipped regions
-    of ``hdr [3,H,W]``'s 8-bit copy, exposed ``exposure`` times the evaluation camera's."""
+    """(features [n,F], log(true mean luminance of the white core / median) [n], the core's solid
+    angle [n]) of the clipped regions of ``hdr [3,H,W]``'s 8-bit copy, exposed ``exposure`` times the
+    evaluation camera's; regions without a white core are left out."""
     ldr, s = ldr_copy(hdr, exposure)
     clipped, labels, n = clipped_regions(ldr)
     if n == 0:
         return torch.zeros(0, len(FEATURES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.float64)
     feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL)
-    area, (true,) = region_means(labels, n, luminance(hdr.float() * s))
+    area, (true,) = region_means(white_cores(ldr, labels), n, luminance(hdr.float() * s))
     med = max(float(luminance(ldr).median()), 1e-6)
     keep = area > 0
     return feats[keep], torch.log(true[keep] / med), area[keep]
+
+
+def partial_energy(hdr: Tensor, exposure: float = 1.0) -> tuple[float, float]:
+    """(true, :func:`fill_partial`'s) luminous energy of the partly clipped pixels of the copy."""
+    ldr, s = ldr_copy(hdr, exposure)
+    over = ldr >= CLIP_LEVEL
+    partial = over.any(0) & ~over.all(0)
+    H, W = ldr.shape[-2:]
+    omega = (pano.solid_angles(H, 1) / W).expand(H, W)[partial]
+    true = float((luminance(hdr.float() * s)[partial] * omega).sum())
+    return true, float((luminance(fill_partial(ldr, CLIP_LEVEL))[partial] * omega).sum())
 
 
 def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[float, tuple[float, ...]]:
@@ -60,18 +76,48 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
     from phyir.io import load_panorama
 
     X, y, w = [], [], []
+    partial = torch.zeros(2, dtype=torch.float64)
     for p in paths:
-        hdr = load_panorama(p).float()
+        hdr = torch.nan_to_num(load_panorama(p).float(), nan=0.0, posinf=0.0).clamp_min(0)
         for e in exposures:
             f, t, a = region_samples(hdr, e)
             X.append(f), y.append(t), w.append(a)
+            partial += torch.tensor(partial_energy(hdr, e), dtype=torch.float64)
     X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
     intercept, coef = fit(X_, y_, w_, ridge)
-    small = w_ < small_below_sr
+    small = X_[:, FEATURES.index("log_area")] < math.log(small_below_sr)  # as RegionModel splits them
     small_intercept, small_coef = fit(X_[small], y_[small], torch.ones(int(small.sum()), dtype=torch.float64),
                                       ridge) if int(small.sum()) > len(FEATURES) else (0.0, ())
     return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge,
-                       small_below_sr if small_coef else 0.0, small_intercept, small_coef)
+                       small_below_sr if small_coef else 0.0, small_intercept, small_coef,
+                       float(partial[0] / partial[1]) if partial[1] > 0 else 1.0)
+
+
+def leave_one_out(paths: list[Path], log=print) -> dict[str, float]:
+    """Each panorama measured (:func:`phyir.evaluation.ldr_light.evaluate_panorama`, ``regions``)
+    with the model fitted on all the others: the training split's own held-out figures. Returns the
+    medians of the diffuse and matte-silver rel L1 (and the naive copy's), the rooms whose diffuse
+    intensity ratio is within 0.6-1.6 and the clipped regions within 2x, pooled."""
+    import statistics
+
+    from phyir.evaluation.ldr_light import evaluate_panorama
+
+    rows = []
+    for p in paths:
+        row = evaluate_panorama(p, region_model=fit_model([q for q in paths if q != p]))
+        r, naive = row["regions"], row["naive"]
+        rows.append((r, naive))
+        log(f"{p.name}: diffuse rel L1 {r['diffuse.rel_l1']:.3f} (naive {naive['diffuse.rel_l1']:.3f}), "
+            f"intensity {r['diffuse.ratio']:.2f}, matte silver {r['matte_silver.rel_l1']:.3f}, regions "
+            f"within 2x {r.get('regions_within_2x', math.nan):.2f} of {r.get('regions', 0):.0f}")
+    def med(i: int, key: str) -> float:
+        return statistics.median(x[i][key] for x in rows)
+    regions = sum(x[0].get("regions", 0) for x in rows)
+    within = sum(x[0].get("regions", 0) * x[0].get("regions_within_2x", 0) for x in rows)
+    return {"diffuse": med(0, "diffuse.rel_l1"), "diffuse_naive": med(1, "diffuse.rel_l1"),
+            "matte": med(0, "matte_silver.rel_l1"), "matte_naive": med(1, "matte_silver.rel_l1"),
+            "rooms_in_band": sum(0.6 <= x[0]["diffuse.ratio"] <= 1.6 for x in rows), "rooms": len(rows),
+            "regions_within_2x": within / max(regions, 1)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,19 +126,30 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True,
                     help="folder of real HDR panoramas (its training split is read)")
-    ap.add_argument("--out", type=Path, required=True, help="the model's JSON file")
+    ap.add_argument("--out", type=Path, help="the model's JSON file")
+    ap.add_argument("--leave-one-out", action="store_true",
+                    help="measure each training panorama with the model fitted on the others instead")
     a = ap.parse_args(argv)
     paths = hdr_files(a.hdri, "train")
     if not paths:
         print(f"{a.hdri}: no HDR panoramas in its training split", file=sys.stderr)
         return 2
+    if a.leave_one_out:
+        s = leave_one_out(paths)
+        print(f"leave one out, {s['rooms']} panoramas: diffuse rel L1 {s['diffuse']:.3f} (naive "
+              f"{s['diffuse_naive']:.3f}), matte silver {s['matte']:.3f} (naive {s['matte_naive']:.3f}), "
+              f"{s['rooms_in_band']}/{s['rooms']} rooms within 0.6-1.6, regions within 2x "
+              f"{s['regions_within_2x']:.0%}")
+        return 0
+    if a.out is None:
+        ap.error("--out is required (or --leave-one-out)")
     model = fit_model(paths)
     model.save(a.out)
     terms = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.coef, model.features))
     small = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.small_coef, model.features))
     print(f"{a.out}: {model.regions} regions of {len(paths)} panoramas: log(L/median) = "
           f"{model.intercept:.3f} {terms}; under {model.small_below_sr} sr: "
-          f"{model.small_intercept:.3f} {small}")
+          f"{model.small_intercept:.3f} {small}; partly clipped pixels x{model.partial_gain:.3f}")
     return 0
 
 

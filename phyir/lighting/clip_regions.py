@@ -1,14 +1,17 @@
 """How much light a clipped region held, from what the 8-bit panorama still shows around it.
 
-A lamp, a window or a softbox clips at 1.0 in an 8-bit panorama; how far above the clip it was is
-written in its surroundings: its solid angle, where it sits (a ceiling lamp, a window at the
-horizon), how bright the unclipped ring around it is (the falloff of a bright source over the wall
-and the glow at its edge), and whether all three channels clipped (white) or one (coloured light).
-:class:`RegionModel` maps those :data:`FEATURES` to the log of the region's true mean luminance over
-the panorama's median: ridge regressions (one law for big regions, one for small ones) fitted on
-real HDR panoramas photographed by the evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the
-shipped coefficients are ``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery`
-applies it.
+A lamp, a window or a softbox clips at 1.0 in an 8-bit panorama. Where only some of a pixel's
+channels clipped (the coloured halo of a lamp, a warm wall by a fire), the others are measurements:
+:func:`fill_partial` gives the clipped channels the hue of the region's surroundings and the
+model's ``partial_gain``, and nothing more. Where all three clipped (the region's white core), how
+far above the clip it was is written in the surroundings: the region's solid angle, where it sits
+(a ceiling lamp, a window at the horizon), how bright the unclipped ring around it is (the falloff
+of a bright source over the wall and the glow at its edge), and whether all three channels clipped
+(white) or one (coloured light). :class:`RegionModel` maps those :data:`FEATURES` of the region to
+the log of its white core's true mean luminance over the panorama's median: ridge regressions (one
+law for big regions, one for small ones) fitted on real HDR panoramas photographed by the
+evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
+``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery` applies it.
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ from phyir.color import luminance
 FEATURES = ("log_area", "sin_lat", "ring_near", "ring_far", "white")
 FEATURE_ROWS = 256  # the rings are measured at this many rows (2 and 8 pixels wide: ~1.4 and 5.6 degrees)
 RING_NEAR, RING_FAR = 2, 8
+HUE_RING = 3  # pixels: the unclipped band around the clipped pixels whose colour fill_partial takes
 MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json"
 
 
 @dataclass(frozen=True)
 class RegionModel:
-    """log(region mean luminance / panorama median) = intercept + Σ coef · feature.
+    """log(white core's mean luminance / panorama median) = intercept + Σ coef · feature (of the
+    whole region); ``partial_gain``: the factor of :func:`fill_partial`'s partly clipped pixels.
 
     With ``small_coef``, regions under ``small_below_sr`` steradians take a second law,
     ``small_intercept + Σ small_coef · feature``: the main law is fitted with each region weighted by
@@ -50,6 +55,7 @@ class RegionModel:
     small_below_sr: float = 0.0
     small_intercept: float = 0.0
     small_coef: tuple[float, ...] = ()
+    partial_gain: float = 1.0
 
     def log_gain(self, feats: Tensor) -> Tensor:
         """[n] predicted log(mean luminance / median) of regions with features ``feats [n, F]``."""
@@ -76,7 +82,7 @@ class RegionModel:
         m = RegionModel(float(d["intercept"]), tuple(float(c) for c in d["coef"]), tuple(d["features"]),
                         tuple(d.get("fitted_on", ())), int(d.get("regions", 0)), float(d.get("ridge", 0.0)),
                         float(d.get("small_below_sr", 0.0)), float(d.get("small_intercept", 0.0)),
-                        tuple(float(c) for c in d.get("small_coef", ())))
+                        tuple(float(c) for c in d.get("small_coef", ())), float(d.get("partial_gain", 1.0)))
         sizes = {len(m.coef)} | ({len(m.small_coef)} if m.small_coef else set())
         return m if m.features == FEATURES and sizes == {len(FEATURES)} else None
 
@@ -86,6 +92,29 @@ def _dilate(mask: Tensor, r: int) -> Tensor:
     along the rows, then the columns (the same result, a fraction of the work)."""
     x = F.max_pool2d(F.pad(mask[None, None].float(), (r, r, 0, 0), mode="circular"), (1, 2 * r + 1), 1)
     return F.max_pool2d(x, (2 * r + 1, 1), 1, padding=(r, 0))[0, 0] > 0
+
+
+def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0) -> Tensor:
+    """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (some channels at ``clip``, not
+    all) have their clipped channels raised to the hue of the unclipped band around the clipped
+    pixels, matched to the pixel's measured channels, then the pixel times ``gain``. Every other
+    pixel is returned as it is (white cores are :class:`RegionModel`'s)."""
+    x = ldr.float()
+    over = x >= clip
+    partial = over.any(0) & ~over.all(0)
+    if not bool(partial.any()):
+        return x.clone()  # (a new tensor either way: callers write into it)
+    H, W = x.shape[-2:]
+    omega = (pano.solid_angles(H, 1) / W).expand(H, W)
+    band = _dilate(over.any(0), HUE_RING) & ~over.any(0)
+    hue = (x[:, band] * omega[band]).sum(1) if bool(band.any()) else torch.ones(3)
+    hue = (hue / hue.max().clamp_min(1e-12)).clamp_min(1e-3)[:, None, None]
+    hue = hue[:, 0]  # (only the partly clipped pixels are gathered: a 360 camera's image is 200 MB)
+    xp, op = x[:, partial], over[:, partial]
+    level = torch.where(op, torch.zeros_like(xp), xp / hue).amax(0)  # the measured channels' level
+    out = x.clone()
+    out[:, partial] = torch.where(op, torch.maximum(xp, level * hue), xp) * gain
+    return out
 
 
 def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Tensor]]:

@@ -8,8 +8,10 @@ to the panorama's median, that a clipped steradian has in path-traced rooms: ``L
 A**AREA_EXPONENT`` (``python -m benchmarks.ldr_clip_calibration DATA``; the region's area tells
 almost nothing there, so AREA_EXPONENT is 0), or, given a
 :class:`phyir.lighting.clip_regions.RegionModel` (fitted on real HDR panoramas), what it predicts
-from what the panorama shows around the region (not the default: docs/results.md says why). The
-region keeps its colour and its shape; a region already brighter than its target is left alone.
+from what the panorama shows around the region (not the default: docs/results.md says why) for its
+white core, the partly clipped pixels getting only their clipped channels back
+(:func:`phyir.lighting.clip_regions.fill_partial`). The region keeps its colour and its shape; a
+region already brighter than its target is left alone.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, region_features, region_means
+from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, fill_partial, region_features, region_means
 from phyir.lighting.extract import components
 
 CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
@@ -56,6 +58,11 @@ def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Te
     return clipped, lab.masked_fill_(~clipped, -1), n
 
 
+def white_cores(image: Tensor, labels: Tensor, clip: float = CLIP_LEVEL) -> Tensor:
+    """``labels`` [H,W] kept only where all three channels of ``image`` clipped (-1 elsewhere)."""
+    return labels.masked_fill((image < clip).any(0), -1)
+
+
 def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
                     model: RegionModel | None | str = None) -> tuple[Tensor, Recovery]:
     """The LDR panorama ``[3,H,W]`` (linear, clipped at ``clip``) with its clipped regions brought to
@@ -73,14 +80,18 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     omega = pano.solid_angles(H, 1) / W
     lum = luminance(x)
     med = float(lum.median())
-    area, (mean,) = region_means(labels, n, lum)
-    if model is not None:
-        target = max(med, 1e-6) * torch.exp(model.log_gain(region_features(x, clipped, labels, n, clip)))
+    if model is not None:  # the law lifts the white cores; the partly clipped pixels are filled
+        feats = region_features(x, clipped, labels, n, clip)
+        labels = white_cores(x, labels, clip)
+        area, (mean,) = region_means(labels, n, lum)
+        target = max(med, 1e-6) * torch.exp(model.log_gain(feats))
+        out = fill_partial(x, clip, model.partial_gain)
     else:
+        area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
+        out = x.clone()
     boost = (area > 0) & (target > mean)
     factor = torch.where(boost, target / mean.clamp_min(1e-6), torch.ones_like(mean)).float()
-    out = x.clone()
     inside = labels >= 0
     out[:, inside] = x[:, inside] * factor[labels[inside].long()]
     boosted = int(boost.sum())

@@ -90,3 +90,56 @@ def test_the_shipped_model_has_both_laws():
     model = RegionModel.load()
     assert model is not None and model.small_below_sr > 0 and len(model.small_coef) == len(FEATURES)
     assert len(model.fitted_on) == 15 and not any("colorful_studio" in f for f in model.fitted_on)
+
+
+def halo_panorama() -> torch.Tensor:
+    """``lamp_panorama``'s white disk inside a warm halo whose red channel clipped (8-12°: red 1.0,
+    green 0.6, blue 0.3), in an unclipped band of hue (2, 1, 0.5) out to 20°."""
+    d = pano.directions(H, W)
+    angle = torch.rad2deg(torch.acos((d * torch.tensor([0.0, 0.0, -1.0])[:, None, None]).sum(0).clamp(-1, 1)))
+    img = torch.full((3, H, W), 0.18)
+    img[:, angle < 20] = torch.tensor([0.8, 0.4, 0.2])[:, None]
+    img[:, angle < 12] = torch.tensor([1.0, 0.6, 0.3])[:, None]
+    img[:, angle < 8] = 1.0
+    return img
+
+
+def test_partly_clipped_pixels_keep_their_measured_channels():
+    """fill_partial: the halo's green and blue are measurements and stay; its clipped red takes the
+    band's hue at the measured level (2 x green = 1.2); then everything times the gain. The white
+    disk and the unclipped pixels are not touched."""
+    from phyir.lighting.clip_regions import fill_partial
+
+    ldr = halo_panorama()
+    out = fill_partial(ldr, CLIP_LEVEL, gain=1.5)
+    over = ldr >= CLIP_LEVEL
+    halo = over.any(0) & ~over.all(0)
+    want = torch.tensor([1.2, 0.6, 0.3])[:, None] * 1.5
+    assert torch.allclose(out[:, halo], want.expand(3, int(halo.sum())), atol=1e-4)
+    assert torch.equal(out[:, ~halo], ldr[:, ~halo])
+
+
+def test_the_law_lifts_the_white_core_and_not_the_halo():
+    """recover_clipped with a model: the white core reaches the law's luminance; the partly clipped
+    halo gets fill_partial's values, however bright the law says the region is."""
+    from phyir.lighting.clip_regions import fill_partial
+
+    ldr = halo_panorama()
+    model = RegionModel(math.log(40.0), (0.0,) * len(FEATURES), partial_gain=1.2)
+    out, rec = recover_clipped(ldr, model=model)
+    over = ldr >= CLIP_LEVEL
+    core, halo = over.all(0), over.any(0) & ~over.all(0)
+    med = float(luminance(ldr).median())
+    omega = pano.solid_angles(H, W)
+    lum = luminance(out)
+    mean = float((lum[core] * omega[core]).sum() / omega[core].sum())
+    assert abs(mean / (40 * med) - 1) < 1e-3 and rec.regions == 1
+    assert torch.allclose(out[:, halo], fill_partial(ldr, CLIP_LEVEL, 1.2)[:, halo])
+
+
+def test_recovery_never_writes_into_its_input():
+    """Without partly clipped pixels too (fill_partial has nothing to fill)."""
+    for ldr in (lamp_panorama(0.5), halo_panorama()):
+        before = ldr.clone()
+        recover_clipped(ldr, model=RegionModel(math.log(40.0), (0.0,) * len(FEATURES)))
+        assert torch.equal(ldr, before)
