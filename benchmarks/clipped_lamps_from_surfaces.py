@@ -34,8 +34,8 @@ from phyir.inference import predict
 from phyir.io import load_panorama
 from phyir.learn.camera import ldr_copy
 from phyir.learn.ldr_pairs import hdr_files
-from phyir.lighting.clip_regions import RegionModel, region_features, region_means
-from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions
+from phyir.lighting.clip_regions import RegionModel, region_means
+from phyir.lighting.hdr_recovery import clipped_regions, recover_clipped
 
 SIZE = (64, 128)  # the radiosity grid
 POINTS = 3000  # surface points fitted
@@ -110,12 +110,11 @@ def room_rows(path: Path) -> dict[str, tuple[list[float], float]] | None:
     area, (mean_ldr, mean_true) = region_means(labels, n, lum, luminance(hdr * s))
     big = area >= MIN_REGION_SR
     grid = room_grid(ldr)
-    med = max(float(lum.median()), 1e-6)
     methods = {f"surfaces ρ={a}": fit_radiances(ldr, labels, n, mean_ldr, grid, a).double() for a in ALBEDOS}
     model = RegionModel.load()
-    if model is not None:
-        methods["regions"] = torch.maximum(med * torch.exp(model.log_gain(
-            region_features(ldr, clipped, labels, n, CLIP_LEVEL))), mean_ldr)
+    if model is not None:  # what phyir predict does: the recovered panorama's mean over each region
+        _, (mean_rec,) = region_means(labels, n, luminance(recover_clipped(ldr, model=model)[0]))
+        methods["regions"] = mean_rec
         methods["both"] = torch.sqrt(methods["regions"] * methods["surfaces ρ=x1"])
     true_energy = float((area * mean_true).sum())
     return {k: ((L / mean_true.clamp_min(1e-30))[big].tolist(), float((area * L).sum()) / true_energy)

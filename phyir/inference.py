@@ -468,8 +468,9 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
 
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
     """An LDR input's clipped regions given their light back: by ClipNet where its weights are
-    shipped (:mod:`phyir.lighting.ldr_to_hdr`), else by the calibrated gain per region
-    (:mod:`phyir.lighting.hdr_recovery`)."""
+    shipped (:mod:`phyir.lighting.ldr_to_hdr`), else by the region model fitted on real HDR
+    panoramas (:mod:`phyir.lighting.clip_regions`), or the calibrated gain per region where its
+    file is missing (:mod:`phyir.lighting.hdr_recovery`)."""
     from phyir.lighting.hdr_recovery import Recovery, clipped_regions, recover_clipped
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
@@ -479,7 +480,7 @@ def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
         image, sr, gain = recover(out.image, model)
         rec = Recovery(regions, sr, gain, "clipnet")
     else:
-        image, rec = recover_clipped(out.image)
+        image, rec = recover_clipped(out.image, model="shipped")
     if rec.regions:
         out.image = image
         report.hdr_recovery = rec

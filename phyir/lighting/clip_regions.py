@@ -32,7 +32,7 @@ from phyir.color import luminance
 FEATURES = ("log_area", "sin_lat", "ring_near", "ring_far", "white")
 FEATURE_ROWS = 256  # the rings are measured at this many rows (2 and 8 pixels wide: ~1.4 and 5.6 degrees)
 RING_NEAR, RING_FAR = 2, 8
-HUE_RING = 3  # pixels: the unclipped band around the clipped pixels whose colour fill_partial takes
+HUE_RING = 2  # pixels at FEATURE_ROWS: the unclipped band whose colour fill_partial gives
 MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json"
 
 
@@ -104,17 +104,29 @@ def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0) -> Tensor:
     partial = over.any(0) & ~over.all(0)
     if not bool(partial.any()):
         return x.clone()  # (a new tensor either way: callers write into it)
-    H, W = x.shape[-2:]
-    omega = (pano.solid_angles(H, 1) / W).expand(H, W)
-    band = _dilate(over.any(0), HUE_RING) & ~over.any(0)
-    hue = (x[:, band] * omega[band]).sum(1) if bool(band.any()) else torch.ones(3)
-    hue = (hue / hue.max().clamp_min(1e-12)).clamp_min(1e-3)[:, None, None]
-    hue = hue[:, 0]  # (only the partly clipped pixels are gathered: a 360 camera's image is 200 MB)
+    hue = _band_hue(x, over.any(0))[:, None]
+    # only the partly clipped pixels are gathered (a 360 camera's image is 200 MB)
     xp, op = x[:, partial], over[:, partial]
     level = torch.where(op, torch.zeros_like(xp), xp / hue).amax(0)  # the measured channels' level
     out = x.clone()
     out[:, partial] = torch.where(op, torch.maximum(xp, level * hue), xp) * gain
     return out
+
+
+def _band_hue(x: Tensor, clipped: Tensor) -> Tensor:
+    """[3] colour (max 1) of the unclipped band HUE_RING pixels wide around ``clipped`` [H,W], at
+    FEATURE_ROWS rows as the rings are (the same band in degrees whatever the image's size)."""
+    H, W = x.shape[-2:]
+    h = min(H, FEATURE_ROWS)
+    small = pano.resize_area(x, h, 2 * h)
+    # a coarse pixel is clipped if any of its pixels is: max-pooled from the full-size mask
+    clip = F.adaptive_max_pool2d(clipped[None, None].float(), (h, 2 * h))[0, 0] > 0 if H > h else clipped
+    band = _dilate(clip, HUE_RING) & ~clip
+    if not bool(band.any()):
+        return torch.ones(3)
+    omega = pano.solid_angles(h, 2 * h)
+    hue = (small[:, band] * omega[band]).sum(1)
+    return (hue / hue.max().clamp_min(1e-12)).clamp_min(1e-3)
 
 
 def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Tensor]]:
@@ -130,28 +142,30 @@ def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Te
                   for m in maps]
 
 
-def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float) -> Tensor:
+def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float,
+                    lum: Tensor | None = None) -> Tensor:
     """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
     [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
-    [3,H,W]`` clipped at ``clip``."""
+    [3,H,W]`` clipped at ``clip``; ``lum``: its luminance [H,W], where the caller has it."""
     H, W = ldr.shape[-2:]
+    lum = luminance(ldr) if lum is None else lum
     sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
     area, (lat, white) = region_means(labels, n, sin_lat, (ldr >= clip).all(0))
-    med = max(float(luminance(ldr).median()), 1e-6)
-    near, far = _ring_luminance(ldr, clipped, labels, n, med)
+    med = max(float(lum.median()), 1e-6)
+    near, far = _ring_luminance(lum, clipped, labels, n, med)
     return torch.stack((torch.log(area.clamp_min(1e-12)), lat, torch.log(near + 1e-3), torch.log(far + 1e-3),
                         white), 1)
 
 
-def _ring_luminance(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int,
+def _ring_luminance(lum_full: Tensor, clipped: Tensor, labels: Tensor, n: int,
                     med: float) -> tuple[Tensor, Tensor]:
     """Solid-angle mean luminance / median of the unclipped rings around each region, RING_NEAR
     and RING_NEAR..RING_FAR pixels wide at FEATURE_ROWS rows (0.01 where a ring is empty)."""
-    H, W = ldr.shape[-2:]
+    H, W = lum_full.shape[-2:]
     h = min(H, FEATURE_ROWS)
     rows, cols = torch.arange(h) * H // h, torch.arange(2 * h) * W // (2 * h)
     lab, clip = labels[rows][:, cols], clipped[rows][:, cols]
-    lum = pano.resize_area(luminance(ldr)[None].float(), h, 2 * h)[0].double() / med
+    lum = pano.resize_area(lum_full[None].float(), h, 2 * h)[0].double() / med
     omega = pano.solid_angles(h, 2 * h, dtype=torch.float64)
     out = torch.full((2, n), 0.01, dtype=torch.float64)
     for j in range(n):

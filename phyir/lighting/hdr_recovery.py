@@ -3,15 +3,16 @@
 An 8-bit panorama (a phone, a JPEG) clips lamps and windows at 1.0: the naive environment from it
 holds a fraction of their energy (the real panoramas of ``phyir eval --real``: a diffuse sphere lit by
 the LDR copy is 0.4-0.9x as bright as under the HDR). Each connected clipped region (8-connected,
-wrapping in longitude, found at :data:`LABEL_ROWS` rows) is brought to the mean luminance, relative
-to the panorama's median, that a clipped steradian has in path-traced rooms: ``L / median = GAIN *
-A**AREA_EXPONENT`` (``python -m benchmarks.ldr_clip_calibration DATA``; the region's area tells
-almost nothing there, so AREA_EXPONENT is 0), or, given a
-:class:`phyir.lighting.clip_regions.RegionModel` (fitted on real HDR panoramas), what it predicts
-from what the panorama shows around the region (not the default: docs/results.md says why) for its
-white core, the partly clipped pixels getting only their clipped channels back
-(:func:`phyir.lighting.clip_regions.fill_partial`). The region keeps its colour and its shape; a
-region already brighter than its target is left alone.
+wrapping in longitude, found at :data:`LABEL_ROWS` rows) is given light back in one of two ways.
+With a :class:`phyir.lighting.clip_regions.RegionModel` (fitted on real HDR panoramas; what
+``phyir predict`` uses) its white core is brought to the luminance the model predicts from what the
+panorama shows around the region, and its partly clipped pixels get only their clipped channels
+back (:func:`phyir.lighting.clip_regions.fill_partial`). Without one, the whole region is brought
+to the mean luminance, relative to the panorama's median, that a clipped steradian has in
+path-traced rooms: ``L / median = GAIN * A**AREA_EXPONENT`` (``python -m
+benchmarks.ldr_clip_calibration DATA``; the region's area tells almost nothing there, so
+AREA_EXPONENT is 0). The region keeps its colour and its shape; a region already brighter than its
+target is left alone.
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     lum = luminance(x)
     med = float(lum.median())
     if model is not None:  # the law lifts the white cores; the partly clipped pixels are filled
-        feats = region_features(x, clipped, labels, n, clip)
+        feats = region_features(x, clipped, labels, n, clip, lum)
         labels = white_cores(x, labels, clip)
         area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * torch.exp(model.log_gain(feats))
