@@ -68,40 +68,15 @@ def recovery_table(light: dict) -> list[str]:
     return out
 
 
-def ldr_light_table(doc: dict) -> list[str]:
-    """One row per room: each method's diffuse and matte-silver rel L1, diffuse intensity ratio and
-    clipped regions within 2x (``phyir eval --ldr-light``'s JSON), then the medians."""
-    from phyir.learn.ldr_pairs import is_validation
-
-    methods = [m for m in ("naive", "gain", "regions", "clipnet") if f"median/{m}" in doc]
-    recovering = [m for m in methods if m != "naive"]
-    names = " / ".join(methods)
-    out = [f"| room | diffuse rel L1: {names} | diffuse intensity ratio: {names} "
-           f"| matte silver rel L1: {names} | clipped regions within 2×: {' / '.join(recovering)} |",
-           "| --- | ---: | ---: | ---: | ---: |"]
-    rooms = sorted({k.split("/")[0] for k in doc if not k.startswith("median/")},
-                   key=lambda r: (not is_validation(r), r))
-    for room in rooms + ["median"]:
-        v = {m: doc[f"{room}/{m}"] for m in methods}
-        cells = {key: " / ".join(format(v[m][key], ".3f") for m in methods)
-                 for key in ("diffuse.rel_l1", "matte_silver.rel_l1")}
-        ratio = " / ".join(f"{v[m]['diffuse.ratio_min']:.2f}–{v[m]['diffuse.ratio_max']:.2f}"
-                           if room == "median" else f"{v[m]['diffuse.ratio']:.2f}" for m in methods)
-        within = " / ".join(f"{100 * v[m].get('regions_within_2x', 0):.0f} %" for m in recovering)
-        label = ("**median** (ratio: range)" if room == "median"
-                 else room.replace("_1k", "") + (" (validation split)" if is_validation(room) else ""))
-        out.append(f"| {label} | {cells['diffuse.rel_l1']} | {ratio} "
-                   f"| {cells['matte_silver.rel_l1']} | {within} |")
-    return out
-
-
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print(__doc__, file=sys.stderr)
         return 2
     doc = json.loads(open(argv[0]).read())
     if "lighting" not in doc:
-        print("\n".join(ldr_light_table(doc)))
+        from phyir.evaluation.ldr_light import room_table
+
+        print("\n".join(room_table(doc)))
         return 0
     print("\n".join(geometry_table(doc["geometry"]) + [""] + lighting_table(doc["lighting"]) + [""]
                     + recovery_table(doc["lighting"])))

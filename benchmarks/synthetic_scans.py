@@ -16,23 +16,20 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import torch
-from PIL import Image
 
 from benchmarks.halls import HELD_OUT_SEED, render_rooms
+from phyir.evaluation.scans import write_scan
 from phyir.io import load_scene
 from phyir.learn.camera import encode_srgb8, ldr_copy
 
 
-def write_scan(scene_path: Path, folder: Path) -> None:
-    """One scene as a scan folder: ``rgb.png`` (8-bit sRGB, auto-exposed) and ``depth.npy``."""
+def write_room_scan(scene_path: Path, folder: Path) -> None:
+    """One scene as a scan: the evaluation camera's 8-bit copy (auto-exposed) and its depth."""
     scene = load_scene(scene_path)
     _, s = ldr_copy(scene.image)
-    folder.mkdir(parents=True)
-    rgb = encode_srgb8(torch.nan_to_num(scene.image.float() * s).clamp(0, 1))
-    Image.fromarray(np.ascontiguousarray(rgb.transpose(1, 2, 0))).save(folder / "rgb.png")
-    np.save(folder / "depth.npy", scene.depth.float()[0].numpy())
+    rgb = encode_srgb8(torch.nan_to_num(scene.image.float() * s).clamp(0, 1)).transpose(1, 2, 0)
+    write_scan(folder, rgb, scene.depth.float())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     rooms = render_rooms(a.cache / f"{a.seed}-{a.size}", a.seed, list(range(start, stop)), size)
     with tempfile.TemporaryDirectory() as tmp:
         for path in rooms:
-            write_scan(path, Path(tmp) / path.stem)
+            write_room_scan(path, Path(tmp) / path.stem)
         results = evaluate_scans(tmp, sheet=a.sheet, weights=a.weights, log=print)
     print(markdown_scans(results))
     return 0

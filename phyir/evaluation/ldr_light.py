@@ -147,3 +147,31 @@ def markdown_ldr_light(results: dict) -> str:
     keys = ["diffuse.rel_l1", "diffuse.ratio", "diffuse.colour_deg", "matte_silver.rel_l1",
             "regions_within_2x", "region_ratio_median", "clipped_log_err"]
     return markdown_table(results, keys, digits=3)
+
+
+def room_table(doc: dict) -> list[str]:
+    """Markdown, one row per room of :func:`evaluate_ldr_light`'s results (validation rooms of
+    ``hdri-indoor`` first, named so): each method's diffuse and matte-silver rel L1, diffuse
+    intensity ratio and clipped regions within 2x, then the medians (the ratio as its range)."""
+    from phyir.learn.ldr_pairs import is_validation
+
+    methods = [m for m in ("naive", "gain", "regions", "clipnet") if f"median/{m}" in doc]
+    recovering = [m for m in methods if m != "naive"]
+    names = " / ".join(methods)
+    out = [f"| room | diffuse rel L1: {names} | diffuse intensity ratio: {names} "
+           f"| matte silver rel L1: {names} | clipped regions within 2×: {' / '.join(recovering)} |",
+           "| --- | ---: | ---: | ---: | ---: |"]
+    rooms = sorted({k.split("/")[0] for k in doc if not k.startswith("median/")},
+                   key=lambda r: (not is_validation(r), r))
+    for room in rooms + ["median"]:
+        v = {m: doc[f"{room}/{m}"] for m in methods}
+        cells = {key: " / ".join(format(v[m][key], ".3f") for m in methods)
+                 for key in ("diffuse.rel_l1", "matte_silver.rel_l1")}
+        ratio = " / ".join(f"{v[m]['diffuse.ratio_min']:.2f}–{v[m]['diffuse.ratio_max']:.2f}"
+                           if room == "median" else f"{v[m]['diffuse.ratio']:.2f}" for m in methods)
+        within = " / ".join(f"{100 * v[m].get('regions_within_2x', 0):.0f} %" for m in recovering)
+        label = ("**median** (ratio: range)" if room == "median"
+                 else room.replace("_1k", "") + (" (validation split)" if is_validation(room) else ""))
+        out.append(f"| {label} | {cells['diffuse.rel_l1']} | {ratio} "
+                   f"| {cells['matte_silver.rel_l1']} | {within} |")
+    return out

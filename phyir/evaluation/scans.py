@@ -94,6 +94,34 @@ def find_scans(folder: str | os.PathLike) -> list[Scan]:
     return sorted(scans, key=lambda s: s.name)
 
 
+def write_scan(folder: str | os.PathLike, rgb: np.ndarray, depth: Tensor | np.ndarray) -> Scan:
+    """Write a scan in the layout :func:`find_scans` reads: ``rgb.png`` (``rgb``: [H,W,3] uint8 sRGB)
+    and ``depth.npy`` (radial metres, [H,W] or [1,H,W]), as one set: both land in a new ``folder``
+    together or not at all."""
+    import shutil
+    import tempfile
+
+    from PIL import Image
+
+    root = Path(folder)
+    if root.exists():
+        raise InputError(root, "already exists: a scan is written into a new folder")
+    d = np.asarray(depth, dtype=np.float32).squeeze()
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3 or d.shape != rgb.shape[:2]:
+        raise ValueError(f"write_scan: expected rgb [H,W,3] uint8 and depth [H,W], got {rgb.shape} "
+                         f"{rgb.dtype} and {list(d.shape)}")
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=root.parent))
+    try:
+        Image.fromarray(np.ascontiguousarray(rgb)).save(tmp / "rgb.png")
+        np.save(tmp / "depth.npy", d)
+        os.replace(tmp, root)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return Scan(root.name, root / "rgb.png", root / "depth.npy")
+
+
 def _read_exr_depth(path: Path) -> np.ndarray:
     from phyir.io import exr
 

@@ -93,56 +93,18 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
                        float(partial[0] / partial[1]) if partial[1] > 0 else 1.0)
 
 
-def leave_one_out(paths: list[Path], log=print) -> dict[str, float]:
-    """Each panorama measured (:func:`phyir.evaluation.ldr_light.evaluate_panorama`, ``regions``)
-    with the model fitted on all the others: the training split's own held-out figures. Returns the
-    medians of the diffuse and matte-silver rel L1 (and the naive copy's), the rooms whose diffuse
-    intensity ratio is within 0.6-1.6 and the clipped regions within 2x, pooled."""
-    import statistics
-
-    from phyir.evaluation.ldr_light import evaluate_panorama
-
-    rows = []
-    for p in paths:
-        row = evaluate_panorama(p, region_model=fit_model([q for q in paths if q != p]))
-        r, naive = row["regions"], row["naive"]
-        rows.append((r, naive))
-        log(f"{p.name}: diffuse rel L1 {r['diffuse.rel_l1']:.3f} (naive {naive['diffuse.rel_l1']:.3f}), "
-            f"intensity {r['diffuse.ratio']:.2f}, matte silver {r['matte_silver.rel_l1']:.3f}, regions "
-            f"within 2x {r.get('regions_within_2x', math.nan):.2f} of {r.get('regions', 0):.0f}")
-    def med(i: int, key: str) -> float:
-        return statistics.median(x[i][key] for x in rows)
-    regions = sum(x[0].get("regions", 0) for x in rows)
-    within = sum(x[0].get("regions", 0) * x[0].get("regions_within_2x", 0) for x in rows)
-    return {"diffuse": med(0, "diffuse.rel_l1"), "diffuse_naive": med(1, "diffuse.rel_l1"),
-            "matte": med(0, "matte_silver.rel_l1"), "matte_naive": med(1, "matte_silver.rel_l1"),
-            "rooms_in_band": sum(0.6 <= x[0]["diffuse.ratio"] <= 1.6 for x in rows), "rooms": len(rows),
-            "regions_within_2x": within / max(regions, 1)}
-
-
 def main(argv: list[str] | None = None) -> int:
     from phyir.learn.ldr_pairs import hdr_files
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True,
                     help="folder of real HDR panoramas (its training split is read)")
-    ap.add_argument("--out", type=Path, help="the model's JSON file")
-    ap.add_argument("--leave-one-out", action="store_true",
-                    help="measure each training panorama with the model fitted on the others instead")
+    ap.add_argument("--out", type=Path, required=True, help="the model's JSON file")
     a = ap.parse_args(argv)
     paths = hdr_files(a.hdri, "train")
     if not paths:
         print(f"{a.hdri}: no HDR panoramas in its training split", file=sys.stderr)
         return 2
-    if a.leave_one_out:
-        s = leave_one_out(paths)
-        print(f"leave one out, {s['rooms']} panoramas: diffuse rel L1 {s['diffuse']:.3f} (naive "
-              f"{s['diffuse_naive']:.3f}), matte silver {s['matte']:.3f} (naive {s['matte_naive']:.3f}), "
-              f"{s['rooms_in_band']}/{s['rooms']} rooms within 0.6-1.6, regions within 2x "
-              f"{s['regions_within_2x']:.0%}")
-        return 0
-    if a.out is None:
-        ap.error("--out is required (or --leave-one-out)")
     model = fit_model(paths)
     model.save(a.out)
     terms = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.coef, model.features))

@@ -50,10 +50,9 @@ def test_eval_ldr_light_end_to_end(tmp_path):
 
 
 def test_the_results_table_of_an_ldr_light_run(tmp_path):
-    """benchmarks.real_tables on `phyir eval --ldr-light`'s JSON: a row per room, validation rooms
-    first and named so, every method's figures in order, the medians' ratio as a range."""
-    from benchmarks.real_tables import ldr_light_table
-
+    """room_table (printed by benchmarks.real_tables) on `phyir eval --ldr-light`'s JSON: a row per
+    room, validation rooms first and named so, every method's figures in order, the medians' ratio
+    as a range."""
     def row(d, r, m, w):
         return {"diffuse.rel_l1": d, "diffuse.ratio": r, "matte_silver.rel_l1": m, "regions_within_2x": w}
     doc = {"studio/naive": row(0.5, 0.4, 0.6, 0.0), "studio/gain": row(0.3, 0.7, 0.4, 0.25),
@@ -61,7 +60,7 @@ def test_the_results_table_of_an_ldr_light_run(tmp_path):
            "lythwood_room_1k/gain": row(0.05, 1.0, 0.1, 0.5)}
     for m in ("naive", "gain"):
         doc[f"median/{m}"] = {**row(0.2, 0.8, 0.3, 0.4), "diffuse.ratio_min": 0.4, "diffuse.ratio_max": 1.0}
-    lines = ldr_light_table(doc)
+    lines = LL.room_table(doc)
     assert lines[0].startswith("| room | diffuse rel L1: naive / gain |")
     assert lines[2] == ("| lythwood_room (validation split) | 0.100 / 0.050 | 0.90 / 1.00 | 0.200 / 0.100 "
                         "| 50 % |")

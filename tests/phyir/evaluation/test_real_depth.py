@@ -175,21 +175,18 @@ def test_eval_scans_end_to_end(tmp_path, capsys):
     assert "median" in capsys.readouterr().out
 
 
-def test_a_synthetic_room_written_as_a_scan_reads_back(tmp_path):
-    """benchmarks.synthetic_scans: the depth comes back exactly through the scan reader, the image
-    as the evaluation camera's 8-bit copy (its median at the auto-exposure key)."""
-    from support.scenes import box_room
+def test_a_written_scan_reads_back_and_is_written_as_one_set(tmp_path):
+    """write_scan (benchmarks.synthetic_scans writes held-out rooms with it): the image and the depth
+    come back exactly through the scan reader; an existing folder is refused and left as it is."""
+    d = room_depth()
+    rgb = np.arange(H * W * 3, dtype=np.int64).reshape(H, W, 3).astype(np.uint8)
+    scan = S.write_scan(tmp_path / "scans" / "room", rgb, torch.from_numpy(d)[None])
+    assert S.find_scans(tmp_path / "scans") == [scan]
+    assert torch.equal(S.read_depth(scan)[0], torch.from_numpy(d.astype(np.float32)))
+    from PIL import Image
 
-    from benchmarks.synthetic_scans import write_scan as write_room_scan
-    from phyir.color import luminance
-    from phyir.learn.camera import AUTO_EXPOSURE_KEY, ldr_copy
-
-    scene = box_room(H, W)
-    io.save_scene(scene, tmp_path / "room.exr")
-    write_room_scan(tmp_path / "room.exr", tmp_path / "scans" / "room")
-    (scan,) = S.find_scans(tmp_path / "scans")
-    assert torch.equal(S.read_depth(scan)[0], scene.depth.float()[0])
-    rgb = io.load_scene(scan.image).image
-    want, _ = ldr_copy(scene.image)
-    assert torch.allclose(rgb, want, atol=1e-6)
-    assert abs(float(luminance(rgb).median()) - AUTO_EXPOSURE_KEY) < 0.02
+    with Image.open(scan.image) as im:
+        assert np.array_equal(np.array(im), rgb)
+    with pytest.raises(InputError, match="already exists"):
+        S.write_scan(tmp_path / "scans" / "room", rgb, d)
+    assert sorted(p.name for p in (tmp_path / "scans").iterdir()) == ["room"]
