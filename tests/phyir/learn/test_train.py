@@ -369,3 +369,19 @@ def test_ship_a_checkpoint_records_its_resolution_and_takes_lnet_gsnet_from_anot
     # how LNet is run comes with it: its probe grid, not the geometry run's
     assert mixed.config.probe_block == 4 and mixed.default_grid(32, 64) == (8, 16)
     assert mixed.config.gm_encoder == geo.config.gm_encoder
+
+
+def test_load_model_matches_a_model_built_on_the_cpu():
+    """load_model builds on the meta device and gives it memory: the same values, dtypes and
+    strides (the layout picks the kernels) as a model built on the CPU with the weights loaded in."""
+    from phyir.learn.weights import default_weights_path, load_into, model_config, read_weights
+    from phyir.nets.model import PhyIRModel
+
+    path = default_weights_path()
+    fast = load_model(path).state_dict()
+    ref = PhyIRModel(model_config(path, read_weights(path)[1]))
+    load_into(ref, path)
+    slow = ref.state_dict()
+    assert fast.keys() == slow.keys()
+    for k in slow:
+        assert torch.equal(fast[k], slow[k]) and fast[k].stride() == slow[k].stride(), k
