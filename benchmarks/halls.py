@@ -63,16 +63,26 @@ def hall_row(path: Path, weights: str | None) -> dict[str, float]:
             "width": float(truth.max())}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_room_options(ap: argparse.ArgumentParser, rooms: str, size: str, cache: str) -> None:
+    """--weights, --seed, --rooms START:STOP, --size HxW and --cache, with these defaults."""
     ap.add_argument("--weights", help="weights file (default: the shipped model)")
     ap.add_argument("--seed", type=int, default=HELD_OUT_SEED)
-    ap.add_argument("--rooms", default="0:160", help="START:STOP of the generator's indices")
-    ap.add_argument("--size", default="128x256")
-    ap.add_argument("--cache", type=Path, default=Path("data/halls"))
-    a = ap.parse_args(argv)
+    ap.add_argument("--rooms", default=rooms, help="START:STOP of the generator's indices")
+    ap.add_argument("--size", default=size)
+    ap.add_argument("--cache", type=Path, default=Path(cache))
+
+
+def room_options(a: argparse.Namespace) -> tuple[int, int, tuple[int, int]]:
+    """(start, stop, (H, W)) of :func:`add_room_options`' options."""
     start, stop = (int(x) for x in a.rooms.split(":"))
-    size = tuple(int(x) for x in a.size.split("x"))
+    return start, stop, tuple(int(x) for x in a.size.split("x"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_room_options(ap, rooms="0:160", size="128x256", cache="data/halls")
+    a = ap.parse_args(argv)
+    start, stop, size = room_options(a)
     torch.manual_seed(0)
     rows = {}
     for path in rendered_halls(a.cache / f"{a.seed}-{a.size}", a.seed, start, stop, size):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.halls import HELD_OUT_SEED, render_rooms
+from benchmarks.halls import add_room_options, render_rooms, room_options
 from phyir.evaluation.scans import write_scan
 from phyir.io import load_scene
 from phyir.learn.camera import encode_srgb8, ldr_copy
@@ -36,15 +36,10 @@ def main(argv: list[str] | None = None) -> int:
     from phyir.evaluation.real_depth import evaluate_scans, markdown_scans
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--weights", help="weights file (default: the shipped model)")
-    ap.add_argument("--seed", type=int, default=HELD_OUT_SEED)
-    ap.add_argument("--rooms", default="0:6", help="START:STOP of the generator's indices")
-    ap.add_argument("--size", default="256x512")
-    ap.add_argument("--cache", type=Path, default=Path("data/scans-synthetic"))
+    add_room_options(ap, rooms="0:6", size="256x512", cache="data/scans-synthetic")
     ap.add_argument("--sheet", type=Path, help="write the contact sheet (PNG)")
     a = ap.parse_args(argv)
-    start, stop = (int(x) for x in a.rooms.split(":"))
-    size = tuple(int(x) for x in a.size.split("x"))
+    start, stop, size = room_options(a)
     torch.manual_seed(0)
     rooms = render_rooms(a.cache / f"{a.seed}-{a.size}", a.seed, list(range(start, stop)), size)
     with tempfile.TemporaryDirectory() as tmp:

@@ -34,30 +34,28 @@ RIDGE = 3.0
 SMALL_BELOW_SR = 0.03  # regions under this solid angle get the law fitted by count (RegionModel)
 
 
-def region_samples(hdr: Tensor, exposure: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
+def region_samples(ldr: Tensor, truth: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """(features [n,F], log(true mean luminance of the white core / median) [n], the core's solid
-    angle [n]) of the clipped regions of ``hdr [3,H,W]``'s 8-bit copy, exposed ``exposure`` times the
-    evaluation camera's; regions without a white core are left out."""
-    ldr, s = ldr_copy(hdr, exposure)
+    angle [n]) of the clipped regions of an 8-bit copy ``ldr [3,H,W]`` of ``truth`` (the HDR in the
+    copy's units); regions without a white core are left out."""
     clipped, labels, n = clipped_regions(ldr)
     if n == 0:
         return torch.zeros(0, len(FEATURES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.float64)
     feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL)
-    area, (true,) = region_means(white_cores(ldr, labels), n, luminance(hdr.float() * s))
+    area, (true,) = region_means(white_cores(ldr, labels), n, luminance(truth))
     med = max(float(luminance(ldr).median()), 1e-6)
     keep = area > 0
     return feats[keep], torch.log(true[keep] / med), area[keep]
 
 
-def partial_energy(hdr: Tensor, exposure: float = 1.0) -> tuple[float, float]:
-    """(true, :func:`fill_partial`'s) luminous energy of the partly clipped pixels of the copy."""
-    ldr, s = ldr_copy(hdr, exposure)
+def partial_energy(ldr: Tensor, truth: Tensor) -> tuple[float, float]:
+    """(true, :func:`fill_partial`'s) luminous energy of the partly clipped pixels of ``ldr``."""
     over = ldr >= CLIP_LEVEL
     partial = over.any(0) & ~over.all(0)
     H, W = ldr.shape[-2:]
     omega = (pano.solid_angles(H, 1) / W).expand(H, W)[partial]
-    true = float((luminance(hdr.float() * s)[partial] * omega).sum())
+    true = float((luminance(truth)[partial] * omega).sum())
     return true, float((luminance(fill_partial(ldr, CLIP_LEVEL))[partial] * omega).sum())
 
 
@@ -79,10 +77,11 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
     partial = torch.zeros(2, dtype=torch.float64)
     for p in paths:
         hdr = torch.nan_to_num(load_panorama(p).float(), nan=0.0, posinf=0.0).clamp_min(0)
-        for e in exposures:
-            f, t, a = region_samples(hdr, e)
+        for e in exposures:  # each exposure photographs the panorama once
+            ldr, s = ldr_copy(hdr, e)
+            f, t, a = region_samples(ldr, hdr * s)
             X.append(f), y.append(t), w.append(a)
-            partial += torch.tensor(partial_energy(hdr, e), dtype=torch.float64)
+            partial += torch.tensor(partial_energy(ldr, hdr * s), dtype=torch.float64)
     X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
     intercept, coef = fit(X_, y_, w_, ridge)
     small = X_[:, FEATURES.index("log_area")] < math.log(small_below_sr)  # as RegionModel splits them
