@@ -2,7 +2,7 @@
 
 Each panorama of the training split (:func:`phyir.learn.ldr_pairs.hdr_files`: the validation split
 is never read) is photographed by the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
-median to 0.18, clipped, 8 bits; :data:`EXPOSURES` can add others); every clipped region gives its
+median to 0.18, clipped, 8 bits) at each of :data:`EXPOSURES`; every clipped region gives its
 features and the true mean luminance of its white core (where all three channels clipped) over the
 copy's median. A ridge regression of the log of that on the features, each region weighted by its
 core's solid angle (the big ones hold the energy), gives the model; a second, each region counted
@@ -29,8 +29,10 @@ from phyir.learn.camera import ldr_copy
 from phyir.lighting.clip_regions import FEATURES, RegionModel, fill_partial, region_features, region_means
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, white_cores
 
-EXPOSURES = (1.0,)  # the evaluation camera's exposure (x0.5 and x2 as well made the held-out rooms worse)
-RIDGE = 3.0
+# the evaluation camera's exposure and four others: the same lamps clipped at other levels, and more
+# walls and windows barely over the clip, which the law must learn to leave nearly as they are
+EXPOSURES = (0.25, 0.5, 1.0, 2.0, 4.0)
+RIDGE = 30.0  # on standardised features
 SMALL_BELOW_SR = 0.03  # regions under this solid angle get the law fitted by count (RegionModel)
 
 
@@ -60,13 +62,17 @@ def partial_energy(ldr: Tensor, truth: Tensor) -> tuple[float, float]:
 
 
 def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[float, tuple[float, ...]]:
-    """Weighted ridge regression (the intercept not penalised): (intercept, coefficients)."""
-    A = torch.cat((torch.ones(len(X), 1, dtype=torch.float64), X.double()), 1)
+    """Weighted ridge regression on standardised features (the intercept not penalised), returned
+    for the raw features: (intercept, coefficients)."""
+    X = X.double()
+    mu, sd = X.mean(0), X.std(0).clamp_min(1e-9)
+    A = torch.cat((torch.ones(len(X), 1, dtype=torch.float64), (X - mu) / sd), 1)
     sw = torch.sqrt(weight / weight.mean())[:, None]
     reg = ridge * torch.eye(A.shape[1], dtype=torch.float64)
     reg[0, 0] = 0
     beta = torch.linalg.solve((A * sw).T @ (A * sw) + reg, (A * sw).T @ (y.double()[:, None] * sw))[:, 0]
-    return float(beta[0]), tuple(float(b) for b in beta[1:])
+    coef = beta[1:] / sd
+    return float(beta[0] - (coef * mu).sum()), tuple(float(b) for b in coef)
 
 
 def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge: float = RIDGE,

@@ -5,9 +5,10 @@ channels clipped (the coloured halo of a lamp, a warm wall by a fire), the other
 :func:`fill_partial` gives the clipped channels the hue of the region's surroundings and the
 model's ``partial_gain``, and nothing more. Where all three clipped (the region's white core), how
 far above the clip it was is written in the surroundings: the region's solid angle, where it sits
-(a ceiling lamp, a window at the horizon), how bright the unclipped ring around it is (the falloff
-of a bright source over the wall and the glow at its edge), and whether all three channels clipped
-(white) or one (coloured light). :class:`RegionModel` maps those :data:`FEATURES` of the region to
+(a ceiling lamp, a window at the horizon), whether all three channels clipped (white) or one
+(coloured light), and the profile of the unclipped rings around it out to 22 degrees: how far its
+glow reaches over the wall and how sharply its edge ends, which tells a lamp from a wall or a
+window barely over the clip. :class:`RegionModel` maps those :data:`FEATURES` of the region to
 the log of its white core's true mean luminance over the panorama's median: ridge regressions (one
 law for big regions, one for small ones) fitted on real HDR panoramas photographed by the
 evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
@@ -29,10 +30,15 @@ from torch import Tensor
 from phyir import pano
 from phyir.color import luminance
 
-FEATURES = ("log_area", "sin_lat", "ring_near", "ring_far", "white")
-FEATURE_ROWS = 256  # the rings are measured at this many rows (2 and 8 pixels wide: ~1.4 and 5.6 degrees)
-RING_NEAR, RING_FAR = 2, 8
-HUE_RING = 2  # pixels at FEATURE_ROWS: the unclipped band whose colour fill_partial gives
+PROFILE_ROWS = 512  # the surroundings are measured at this many rows, whatever the image's size
+RADII = (1, 2, 4, 8, 16, 32, 64)  # pixels at PROFILE_ROWS: rings out to 0.35, 0.7, ... 22.5 degrees
+RING_STATS = ("lum", "bright", "near_clip")
+FEATURES = ("log_area", "sin_lat", "white", "perimeter", "edge_chroma", "clipped_around") + tuple(
+    f"{stat}_{r}" for r in RADII for stat in RING_STATS)
+AROUND = 8  # clipped_around: the share of clipped pixels from AROUND to RADII[-1] pixels away
+# (regions are 8-connected at LABEL_ROWS = 64 rows, so none is nearer than 8 pixels at 512)
+HUE_RING = 4  # pixels at PROFILE_ROWS (1.4 degrees): the unclipped band whose colour fill_partial gives
+BRIGHT, NEAR_CLIP = 0.5, 0.85  # ring pixels above these fractions of the clip count as bright, near clip
 MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json"
 
 
@@ -94,17 +100,43 @@ def _dilate(mask: Tensor, r: int) -> Tensor:
     return F.max_pool2d(x, (2 * r + 1, 1), 1, padding=(r, 0))[0, 0] > 0
 
 
-def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0) -> Tensor:
+@dataclass(frozen=True)
+class Coarse:
+    """A linear 8-bit panorama and its clipped pixels at PROFILE_ROWS, what the region features and
+    :func:`fill_partial`'s band read (one resampling of a 360 camera's image, not one per use):
+    shrunk, area-weighted and a coarse pixel clipped if any of its pixels is; enlarged, nearest (no
+    glow invented at a clipped edge)."""
+
+    image: Tensor  # [3, PROFILE_ROWS, 2·PROFILE_ROWS]
+    clipped: Tensor  # [PROFILE_ROWS, 2·PROFILE_ROWS] bool
+    rows: Tensor  # the full-size row and column of each coarse pixel's nearest sample
+    cols: Tensor
+
+    @staticmethod
+    def of(ldr: Tensor, clipped: Tensor) -> Coarse:
+        H, W = ldr.shape[-2:]
+        h = PROFILE_ROWS
+        rows, cols = torch.arange(h) * H // h, torch.arange(2 * h) * W // (2 * h)
+        if H > h:
+            image = pano.resize_area(ldr.float(), h, 2 * h)
+            clip = F.adaptive_max_pool2d(clipped[None, None].float(), (h, 2 * h))[0, 0] > 0
+        else:
+            image, clip = ldr.float()[:, rows][:, :, cols], clipped[rows][:, cols]
+        return Coarse(image, clip, rows, cols)
+
+
+def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0, coarse: Coarse | None = None) -> Tensor:
     """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (some channels at ``clip``, not
     all) have their clipped channels raised to the hue of the unclipped band around the clipped
     pixels, matched to the pixel's measured channels, then the pixel times ``gain``. Every other
-    pixel is returned as it is (white cores are :class:`RegionModel`'s)."""
+    pixel is returned as it is (white cores are :class:`RegionModel`'s). ``coarse``: the panorama's
+    :class:`Coarse` view, where the caller has it."""
     x = ldr.float()
     over = x >= clip
     partial = over.any(0) & ~over.all(0)
     if not bool(partial.any()):
         return x.clone()  # (a new tensor either way: callers write into it)
-    hue = _band_hue(x, over.any(0))[:, None]
+    hue = _band_hue(coarse or Coarse.of(x, over.any(0)))[:, None]
     # only the partly clipped pixels are gathered (a 360 camera's image is 200 MB)
     xp, op = x[:, partial], over[:, partial]
     level = torch.where(op, torch.zeros_like(xp), xp / hue).amax(0)  # the measured channels' level
@@ -113,19 +145,13 @@ def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0) -> Tensor:
     return out
 
 
-def _band_hue(x: Tensor, clipped: Tensor) -> Tensor:
-    """[3] colour (max 1) of the unclipped band HUE_RING pixels wide around ``clipped`` [H,W], at
-    FEATURE_ROWS rows as the rings are (the same band in degrees whatever the image's size)."""
-    H, W = x.shape[-2:]
-    h = min(H, FEATURE_ROWS)
-    small = pano.resize_area(x, h, 2 * h)
-    # a coarse pixel is clipped if any of its pixels is: max-pooled from the full-size mask
-    clip = F.adaptive_max_pool2d(clipped[None, None].float(), (h, 2 * h))[0, 0] > 0 if H > h else clipped
-    band = _dilate(clip, HUE_RING) & ~clip
+def _band_hue(coarse: Coarse) -> Tensor:
+    """[3] colour (max 1) of the unclipped band HUE_RING pixels wide around the clipped pixels."""
+    band = _dilate(coarse.clipped, HUE_RING) & ~coarse.clipped
     if not bool(band.any()):
         return torch.ones(3)
-    omega = pano.solid_angles(h, 2 * h)
-    hue = (small[:, band] * omega[band]).sum(1)
+    omega = pano.solid_angles(PROFILE_ROWS, 1).expand_as(band)
+    hue = (coarse.image[:, band] * omega[band]).sum(1)
     return (hue / hue.max().clamp_min(1e-12)).clamp_min(1e-3)
 
 
@@ -143,37 +169,93 @@ def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Te
 
 
 def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float,
-                    lum: Tensor | None = None) -> Tensor:
+                    lum: Tensor | None = None, coarse: Coarse | None = None) -> Tensor:
     """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
     [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
-    [3,H,W]`` clipped at ``clip``; ``lum``: its luminance [H,W], where the caller has it."""
+    [3,H,W]`` clipped at ``clip``; ``lum`` (its luminance [H,W]) and ``coarse`` (its
+    :class:`Coarse` view): where the caller has them."""
     H, W = ldr.shape[-2:]
     lum = luminance(ldr) if lum is None else lum
     sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
     area, (lat, white) = region_means(labels, n, sin_lat, (ldr >= clip).all(0))
     med = max(float(lum.median()), 1e-6)
-    near, far = _ring_luminance(lum, clipped, labels, n, med)
-    return torch.stack((torch.log(area.clamp_min(1e-12)), lat, torch.log(near + 1e-3), torch.log(far + 1e-3),
-                        white), 1)
+    profile = _surround_profiles(coarse or Coarse.of(ldr, clipped), labels, n, clip, med)
+    return torch.cat((torch.stack((torch.log(area.clamp_min(1e-12)), lat, white), 1), profile), 1)
 
 
-def _ring_luminance(lum_full: Tensor, clipped: Tensor, labels: Tensor, n: int,
-                    med: float) -> tuple[Tensor, Tensor]:
-    """Solid-angle mean luminance / median of the unclipped rings around each region, RING_NEAR
-    and RING_NEAR..RING_FAR pixels wide at FEATURE_ROWS rows (0.01 where a ring is empty)."""
-    H, W = lum_full.shape[-2:]
-    h = min(H, FEATURE_ROWS)
-    rows, cols = torch.arange(h) * H // h, torch.arange(2 * h) * W // (2 * h)
-    lab, clip = labels[rows][:, cols], clipped[rows][:, cols]
-    lum = pano.resize_area(lum_full[None].float(), h, 2 * h)[0].double() / med
-    omega = pano.solid_angles(h, 2 * h, dtype=torch.float64)
-    out = torch.full((2, n), 0.01, dtype=torch.float64)
+def _surround_profiles(coarse: Coarse, labels: Tensor, n: int, clip: float, med: float) -> Tensor:
+    """[n, 3 + 3·len(RADII)]: ``perimeter`` (log of the unclipped pixels touching the region per
+    region pixel), ``edge_chroma`` (max - min of their mean chromaticity), ``clipped_around``, then
+    for each ring between consecutive RADII (at PROFILE_ROWS): the log of its unclipped mean
+    luminance / median and the solid-angle fractions of those pixels above BRIGHT and NEAR_CLIP ×
+    ``clip``. How far the glow around a region reaches, and how sharply it ends, is what tells a lamp
+    from a wall barely over the clip. Each region is measured in a window of the panorama around it
+    (wrapping in longitude), not over the whole panorama."""
+    h, R = PROFILE_ROWS, RADII[-1]
+    img, clip_map, lab = coarse.image, coarse.clipped, labels[coarse.rows][:, coarse.cols]
+    lum = luminance(img) / med
+    chroma = img / luminance(img).clamp_min(1e-6)
+    omega = pano.solid_angles(h, 1).expand(h, 2 * h)
+
+    def pad(t: Tensor, value: float = 0.0) -> Tensor:  # R pixels: wrapping in longitude, rows past the poles
+        t = torch.cat((t[..., -R:], t, t[..., :R]), -1)
+        return F.pad(t, (0, 0, R, R), value=value)
+
+    maps = (pad(lum), pad(chroma), pad(clip_map.float()) > 0, pad(torch.ones(h, 2 * h)) > 0, pad(omega))
+    lab_p = pad(lab.float(), -1)
+    ys, xs = torch.nonzero(lab >= 0, as_tuple=True)
+    k = lab[ys, xs].long()
+    lo = torch.full((2, n), torch.iinfo(torch.int64).max, dtype=torch.int64)
+    hi = torch.full((2, n), -1, dtype=torch.int64)
+    for i, v in enumerate((ys, xs)):
+        lo[i].scatter_reduce_(0, k, v, "amin")
+        hi[i].scatter_reduce_(0, k, v, "amax")
+    out = torch.zeros(n, 3 + len(RING_STATS) * len(RADII), dtype=torch.float64)
     for j in range(n):
-        m = lab == j
-        if not bool(m.any()):
+        if int(hi[0, j]) < 0:  # the region vanished at PROFILE_ROWS: neutral features
+            out[j, 0] = math.log(1e-3)
             continue
-        grown = _dilate(m, RING_NEAR)
-        for i, ring in enumerate((grown & ~clip, _dilate(m, RING_FAR) & ~grown & ~clip)):
-            if bool(ring.any()):
-                out[i, j] = (lum[ring] * omega[ring]).sum() / omega[ring].sum()
-    return out[0], out[1]
+        win = tuple(slice(int(lo[i, j]), int(hi[i, j]) + 2 * R + 1) for i in range(2))
+        out[j] = _profile(lab_p[win] == j, *(m[..., win[0], win[1]] for m in maps), clip / med)
+    return out
+
+
+def _profile(region: Tensor, lum: Tensor, chroma: Tensor, clip: Tensor, valid: Tensor, omega: Tensor,
+             clip_level: float) -> Tensor:
+    """:func:`_surround_profiles`' row for one region, from a window around it (``lum`` / median)."""
+    grown = dict(zip((AROUND, *RADII), _grown(region, (AROUND, *RADII))))
+    edge = grown[RADII[0]] & ~region & valid & ~clip
+    w = omega[edge].double()
+    perimeter = math.log(float(edge.sum()) / float(region.sum()) + 1e-3)
+    hue = (chroma[:, edge] * w).sum(1) / w.sum() if bool(edge.any()) else torch.ones(3)
+    around = grown[RADII[-1]] & ~grown[AROUND] & valid
+    clipped_around = float((around & clip).sum()) / max(float(around.sum()), 1.0)
+    row = [perimeter, float(hue.max() - hue.min()), clipped_around]
+    inner = region
+    for r in RADII:
+        seen = grown[r] & ~inner & valid & ~clip
+        w = omega[seen].double()
+        if bool(seen.any()):
+            total, ring = w.sum(), lum[seen]
+            row += [math.log(float((ring * w).sum() / total) + 1e-3),
+                    float(w[ring > BRIGHT * clip_level].sum() / total),
+                    float(w[ring > NEAR_CLIP * clip_level].sum() / total)]
+        else:
+            row += [math.log(1e-3), 0.0, 0.0]
+        inner = grown[r]
+    return torch.tensor(row, dtype=torch.float64)
+
+
+def _grown(mask: Tensor, radii: tuple[int, ...]) -> list[Tensor]:
+    """A boolean [h,w] window's mask grown by each of ``radii`` pixels (a square; nothing past the
+    window): box sums of one summed-area table, whatever the radius."""
+    h, w = mask.shape
+    table = F.pad(mask.to(torch.int32).cumsum(0).cumsum(1), (1, 0, 1, 0))
+    iy, ix = torch.arange(h), torch.arange(w)
+    out = []
+    for r in radii:
+        y0, y1 = (iy - r).clamp(0, h), (iy + r + 1).clamp(0, h)
+        x0, x1 = (ix - r).clamp(0, w), (ix + r + 1).clamp(0, w)
+        box = table[y1][:, x1] - table[y0][:, x1] - table[y1][:, x0] + table[y0][:, x0]
+        out.append(box > 0)
+    return out

@@ -25,7 +25,14 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.lighting.clip_regions import MODEL_PATH, RegionModel, fill_partial, region_features, region_means
+from phyir.lighting.clip_regions import (
+    MODEL_PATH,
+    Coarse,
+    RegionModel,
+    fill_partial,
+    region_features,
+    region_means,
+)
 from phyir.lighting.extract import components
 
 CLIP_LEVEL = 0.99  # linear value at or above which an 8-bit channel is clipped (254.5/255 decoded)
@@ -82,11 +89,12 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     lum = luminance(x)
     med = float(lum.median())
     if model is not None:  # the law lifts the white cores; the partly clipped pixels are filled
-        feats = region_features(x, clipped, labels, n, clip, lum)
+        coarse = Coarse.of(x, clipped)
+        feats = region_features(x, clipped, labels, n, clip, lum, coarse)
         labels = white_cores(x, labels, clip)
         area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * torch.exp(model.log_gain(feats))
-        out = fill_partial(x, clip, model.partial_gain)
+        out = fill_partial(x, clip, model.partial_gain, coarse)
     else:
         area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT

@@ -11,7 +11,7 @@ import torch
 from phyir import pano
 from phyir.color import luminance
 from phyir.learn.fit_clip_regions import fit
-from phyir.lighting.clip_regions import FEATURES, RegionModel, region_features
+from phyir.lighting.clip_regions import FEATURES, RADII, RegionModel, _grown, region_features
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, recover_clipped
 
 H, W = 128, 256
@@ -34,21 +34,50 @@ def test_features_measure_the_region():
         ldr = lamp_panorama(ring)
         clipped, labels, n = clipped_regions(ldr)
         assert n == 1
-        feats[ring] = region_features(ldr, clipped, labels, n, CLIP_LEVEL)[0]
-    f = dict(zip(FEATURES, feats[0.2].tolist()))
+        feats[ring] = dict(zip(FEATURES, region_features(ldr, clipped, labels, n, CLIP_LEVEL)[0].tolist()))
+    f, lit = feats[0.2], feats[0.8]
     cap = 2 * math.pi * (1 - math.cos(math.radians(8)))  # the disk's solid angle
     assert abs(math.exp(f["log_area"]) / cap - 1) < 0.1
-    assert abs(f["sin_lat"]) < 0.02 and f["white"] == 1.0
-    # the bright surround reads brighter in both rings (relative to the median, 0.18)
-    near = dict(zip(FEATURES, feats[0.8].tolist()))
-    assert near["ring_near"] > f["ring_near"] + 1 and near["ring_far"] > f["ring_far"] + 1
-    assert abs(math.exp(f["ring_near"]) - 0.2 / 0.18) < 0.1
+    assert abs(f["sin_lat"]) < 0.02 and f["white"] == 1.0 and f["clipped_around"] == 0.0
+    assert f["edge_chroma"] < 1e-4  # a grey surround
+    # rings out to 16 pixels (5.6 degrees; a square's corner 8) lie in the 12-degree surround: its
+    # luminance over the median (0.18), all of it above half the clip when lit at 0.8, none at 0.2,
+    # none near the clip
+    for r in RADII[1:-2]:
+        assert abs(math.exp(f[f"lum_{r}"]) - 0.2 / 0.18) < 0.02, r
+        assert abs(math.exp(lit[f"lum_{r}"]) - 0.8 / 0.18) < 0.05, r
+        assert (f[f"bright_{r}"], lit[f"bright_{r}"], lit[f"near_clip_{r}"]) == (0.0, 1.0, 0.0), r
+    # the ring from 16 to 32 pixels straddles the surround's edge; the last one is the 0.18 room
+    assert 1.1 < math.exp(lit["lum_32"]) < 0.8 / 0.18 - 0.1 and 0 < lit["bright_32"] < 1
+    assert abs(math.exp(lit["lum_64"]) - 1) < 0.01 and lit["bright_64"] == 0.0
+
+
+def test_region_windows_wrap_in_longitude():
+    """A region across the seam has the features of the same region away from it (the windows wrap)."""
+    ldr = lamp_panorama(0.6)
+    seam = torch.roll(ldr, W // 2, dims=-1)  # the disk moves from the centre to the seam
+    rows = []
+    for img in (ldr, seam):
+        clipped, labels, n = clipped_regions(img)
+        assert n == 1
+        rows.append(region_features(img, clipped, labels, n, CLIP_LEVEL)[0])
+    assert torch.allclose(rows[0], rows[1], atol=1e-6)
+
+
+def test_grown_masks_are_square_dilations():
+    """The summed-area table's growth against max pooling (an independent reference)."""
+    import torch.nn.functional as F
+
+    mask = torch.rand(40, 90, generator=torch.Generator().manual_seed(1)) > 0.97
+    for r, grown in zip((1, 3, 8), _grown(mask, (1, 3, 8))):
+        want = F.max_pool2d(mask[None, None].float(), 2 * r + 1, 1, padding=r)[0, 0] > 0
+        assert torch.equal(grown, want), r
 
 
 def test_the_ridge_fit_recovers_a_linear_law():
     g = torch.Generator().manual_seed(0)
     X = torch.randn(400, len(FEATURES), generator=g, dtype=torch.float64)
-    beta = torch.tensor([0.5, -0.3, 1.2, 0.0, 0.7], dtype=torch.float64)
+    beta = torch.linspace(-1.0, 1.2, len(FEATURES), dtype=torch.float64)
     y = 2.0 + X @ beta + 0.01 * torch.randn(400, generator=g, dtype=torch.float64)
     intercept, coef = fit(X, y, torch.rand(400, generator=g, dtype=torch.float64) + 0.5, ridge=1e-6)
     assert abs(intercept - 2.0) < 0.01 and max(abs(a - b) for a, b in zip(coef, beta.tolist())) < 0.01
