@@ -142,6 +142,7 @@ def load_input(source: str | os.PathLike | Tensor | PanoScene, hdr: bool | None 
     if isinstance(source, (str, os.PathLike)):
         scene, fmt = io.read_scene(source, limit=limit)
         scene.meta.setdefault("source", Path(source).name)
+        scene.meta.setdefault("source_format", fmt)  # a JPEG's clipped light takes its own law
         return scene, (fmt in ("exr", "hdr")) if hdr is None else hdr
     if isinstance(source, PanoScene):
         scene = source
@@ -469,8 +470,8 @@ def _probes(out: PanoScene, net: _NetOut, geo: dict[str, Tensor], plan: _Plan,
 def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
     """An LDR input's clipped regions given their light back: by ClipNet where its weights are
     shipped (:mod:`phyir.lighting.ldr_to_hdr`), else by the region model fitted on real HDR
-    panoramas (:mod:`phyir.lighting.clip_regions`), or the calibrated gain per region where its
-    file is missing (:mod:`phyir.lighting.hdr_recovery`)."""
+    panoramas (:mod:`phyir.lighting.clip_regions`; a JPEG file's by the law for JPEG input), or the
+    calibrated gain per region where its file is missing (:mod:`phyir.lighting.hdr_recovery`)."""
     from phyir.lighting.hdr_recovery import Recovery, clipped_regions, recover_clipped
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
@@ -480,7 +481,8 @@ def _recover_hdr(out: PanoScene, report: PredictReport) -> None:
         image, sr, gain = recover(out.image, model)
         rec = Recovery(regions, sr, gain, "clipnet")
     else:
-        image, rec = recover_clipped(out.image, model="shipped")
+        jpeg = out.meta.get("source_format") == "jpeg"
+        image, rec = recover_clipped(out.image, model="shipped-jpeg" if jpeg else "shipped")
     if rec.regions:
         out.image = image
         report.hdr_recovery = rec

@@ -167,7 +167,8 @@ def run(args: argparse.Namespace) -> int:
             note = "; geometry from the input mirrored through the horizon (the upright pass's normals " \
                 "faced away from the camera)" if report.gm_pass == "mirrored" else ""
             if report.hdr_recovery is not None:
-                note += f"; HDR recovered in {report.hdr_recovery.regions} clipped regions " \
+                law = " (the JPEG law)" if report.hdr_recovery.method == "regions-jpeg" else ""
+                note += f"; HDR recovered in {report.hdr_recovery.regions} clipped regions{law} " \
                         f"(energy x{report.hdr_recovery.energy_gain:.2f})"
             if report.normals_from == "depth":
                 note += f"; normals from depth: the network's face away from the camera in " \

@@ -1,7 +1,8 @@
 """HDR light from an 8-bit panorama, measured against the HDR panorama it was photographed from.
 
 Each HDR panorama is photographed by the evaluation's camera (:func:`phyir.learn.camera.ldr_copy`:
-auto-exposed to median 0.18, clipped, 8-bit sRGB) and its light recovered by each method of
+auto-exposed to median 0.18, clipped, 8-bit sRGB; optionally saved as a JPEG) and its light
+recovered by each method of
 :data:`METHODS`: ``naive`` (the LDR as it is), ``gain`` (one calibrated gain per clipped region,
 :mod:`phyir.lighting.hdr_recovery`) and ``clipnet`` (:mod:`phyir.lighting.ldr_to_hdr`, where its
 weights are present). Against the truth (the HDR in the LDR's units):
@@ -44,17 +45,18 @@ def _gain(ldr: Tensor) -> Tensor:
     return recover_clipped(ldr, model=None)[0]
 
 
-def methods(clipnet: str | os.PathLike | None = None,
-            region_model=None) -> dict[str, Callable[[Tensor], Tensor]]:
+def methods(clipnet: str | os.PathLike | None = None, region_model=None,
+            jpeg: bool = False) -> dict[str, Callable[[Tensor], Tensor]]:
     """The recoveries measured: naive, gain (one calibrated gain per region), regions (the shipped
-    :class:`phyir.lighting.clip_regions.RegionModel` where present, or ``region_model``) and, where
-    its weights are present (``clipnet``, default the shipped ones), clipnet."""
-    from phyir.lighting.clip_regions import RegionModel
+    :class:`phyir.lighting.clip_regions.RegionModel` where present — with ``jpeg``, the law for JPEG
+    input, as predict takes for a JPEG file — or ``region_model``) and, where its weights are present
+    (``clipnet``, default the shipped ones), clipnet."""
+    from phyir.lighting.clip_regions import JPEG_MODEL_PATH, RegionModel
     from phyir.lighting.hdr_recovery import recover_clipped
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
     out = {"naive": _naive, "gain": _gain}
-    region_model = region_model or RegionModel.load()
+    region_model = region_model or (jpeg and RegionModel.load(JPEG_MODEL_PATH)) or RegionModel.load()
     if region_model is not None:
         out["regions"] = lambda ldr: recover_clipped(ldr, model=region_model)[0]
     model = load_clipnet(clipnet)
@@ -92,16 +94,19 @@ def region_rows(ldr: Tensor, recovered: Tensor, truth: Tensor) -> dict[str, floa
 
 
 def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None = None,
-                      region_model=None) -> dict[str, dict[str, float]]:
+                      region_model=None, jpeg: int | None = None) -> dict[str, dict[str, float]]:
     """``{method: metrics}`` of one HDR panorama (module doc); ``clipnet``: weights to measure,
-    ``region_model``: a :class:`phyir.lighting.clip_regions.RegionModel` instead of the shipped one."""
+    ``region_model``: a :class:`phyir.lighting.clip_regions.RegionModel` instead of the shipped one;
+    ``jpeg``: the copy saved as a JPEG of that quality (and the law for JPEG input shipped)."""
     from phyir.io import load_panorama
-    from phyir.learn.camera import ldr_copy
+    from phyir.learn.camera import jpeg_linear, ldr_copy
 
     hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
     ldr, scale = ldr_copy(hdr)
+    if jpeg is not None:
+        ldr = jpeg_linear(ldr, jpeg)
     truth = hdr * scale
-    envs = {name: fn(ldr) for name, fn in methods(clipnet, region_model).items()}
+    envs = {name: fn(ldr) for name, fn in methods(clipnet, region_model, jpeg is not None).items()}
     stack = torch.stack([pano.resize_area(e.float(), *RL.INTEGRATION_SIZE) for e in (truth, *envs.values())])
     rows: dict[str, dict[str, float]] = {name: {} for name in envs}
     for mat in RL.MATERIALS:
@@ -117,15 +122,16 @@ def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None
 
 
 def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None] | None = None,
-                       clipnet: str | os.PathLike | None = None) -> dict:
+                       clipnet: str | os.PathLike | None = None, jpeg: int | None = None) -> dict:
     """:func:`evaluate_panorama` on HDR panoramas (files, or folders of them); ``{"<name>/<method>":
-    metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere."""
+    metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere;
+    ``jpeg``: the copies saved as JPEGs of that quality."""
     from phyir.evaluation.real import panorama_files
 
     files = [f for f in panorama_files(paths) if f.suffix.lower() in (".hdr", ".exr")]
     out: dict[str, dict[str, float]] = {}
     for f in files:
-        for name, row in evaluate_panorama(f, clipnet).items():
+        for name, row in evaluate_panorama(f, clipnet, jpeg=jpeg).items():
             out[f"{f.stem}/{name}"] = row
         if log is not None:
             d = {k.split("/")[1]: v["diffuse.rel_l1"] for k, v in out.items() if k.startswith(f"{f.stem}/")}

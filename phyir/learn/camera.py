@@ -59,6 +59,13 @@ def decode_srgb8(codes: np.ndarray) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(srgb_to_linear(codes.astype(np.float32) / 255.0)))
 
 
+def jpeg_linear(ldr: Tensor, quality: int) -> Tensor:
+    """A linear 8-bit image [3,H,W] (values in [0, 1]) through a JPEG encoder at ``quality`` and the
+    loader's sRGB decode."""
+    codes = jpeg_round_trip(encode_srgb8(ldr.permute(1, 2, 0)), quality)
+    return decode_srgb8(codes).permute(2, 0, 1).to(ldr)
+
+
 def hdr_to_ldr_linear(image: Tensor, exposure: float = 1.0) -> Tensor:
     """The fixed camera: ACES at ``exposure``, sRGB, 8 bits, the loader's decode (no white balance or
     JPEG; :func:`simulate_ldr` draws those)."""

@@ -11,6 +11,8 @@ small and barely above the clip). The partly clipped pixels' ``partial_gain`` is
 over what :func:`phyir.lighting.clip_regions.fill_partial` gives them, summed over the panoramas.
 
     python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --out phyir/assets/clip_regions.json
+    python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --jpeg 90 \
+        --out phyir/assets/clip_regions_jpeg.json
 """
 
 from __future__ import annotations
@@ -25,8 +27,15 @@ from torch import Tensor
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.learn.camera import ldr_copy
-from phyir.lighting.clip_regions import FEATURES, RegionModel, fill_partial, region_features, region_means
+from phyir.learn.camera import jpeg_linear, ldr_copy
+from phyir.lighting.clip_regions import (
+    FEATURES,
+    RegionModel,
+    fill_partial,
+    region_features,
+    region_means,
+    white_pixels,
+)
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, white_cores
 
 # the evaluation camera's exposure and four others: the same lamps clipped at other levels, and more
@@ -53,8 +62,7 @@ def region_samples(ldr: Tensor, truth: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 def partial_energy(ldr: Tensor, truth: Tensor) -> tuple[float, float]:
     """(true, :func:`fill_partial`'s) luminous energy of the partly clipped pixels of ``ldr``."""
-    over = ldr >= CLIP_LEVEL
-    partial = over.any(0) & ~over.all(0)
+    partial = (ldr >= CLIP_LEVEL).any(0) & ~white_pixels(ldr, CLIP_LEVEL)
     H, W = ldr.shape[-2:]
     omega = (pano.solid_angles(H, 1) / W).expand(H, W)[partial]
     true = float((luminance(truth)[partial] * omega).sum())
@@ -76,7 +84,12 @@ def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[flo
 
 
 def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge: float = RIDGE,
-              small_below_sr: float = SMALL_BELOW_SR) -> RegionModel:
+              small_below_sr: float = SMALL_BELOW_SR, jpeg: int | None = None) -> RegionModel:
+    """The law fitted on ``paths``' copies at each of ``exposures``; with ``jpeg``, each copy also
+    through a JPEG encoder at that quality (the law for JPEG input: its ringing and chroma
+    subsampling change what a region's surroundings look like). The partly clipped pixels' gain comes
+    from the copies as they are either way (in a JPEG, most of them are a white core's fringe, which
+    the law already covers)."""
     from phyir.io import load_panorama
 
     X, y, w = [], [], []
@@ -85,9 +98,10 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
         hdr = torch.nan_to_num(load_panorama(p).float(), nan=0.0, posinf=0.0).clamp_min(0)
         for e in exposures:  # each exposure photographs the panorama once
             ldr, s = ldr_copy(hdr, e)
-            f, t, a = region_samples(ldr, hdr * s)
-            X.append(f), y.append(t), w.append(a)
             partial += torch.tensor(partial_energy(ldr, hdr * s), dtype=torch.float64)
+            for copy in (ldr,) if jpeg is None else (ldr, jpeg_linear(ldr, jpeg)):
+                f, t, a = region_samples(copy, hdr * s)
+                X.append(f), y.append(t), w.append(a)
     X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
     intercept, coef = fit(X_, y_, w_, ridge)
     small = X_[:, FEATURES.index("log_area")] < math.log(small_below_sr)  # as RegionModel splits them
@@ -95,7 +109,7 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
                                       ridge) if int(small.sum()) > len(FEATURES) else (0.0, ())
     return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge,
                        small_below_sr if small_coef else 0.0, small_intercept, small_coef,
-                       float(partial[0] / partial[1]) if partial[1] > 0 else 1.0)
+                       float(partial[0] / partial[1]) if partial[1] > 0 else 1.0, jpeg or 0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,12 +119,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hdri", type=Path, required=True,
                     help="folder of real HDR panoramas (its training split is read)")
     ap.add_argument("--out", type=Path, required=True, help="the model's JSON file")
+    ap.add_argument("--jpeg", type=int, metavar="Q",
+                    help="fit the law for JPEG input: each copy also through a JPEG encoder at quality Q")
     a = ap.parse_args(argv)
+    if a.jpeg is not None and not 1 <= a.jpeg <= 100:
+        print(f"--jpeg: a JPEG quality is 1-100, not {a.jpeg}", file=sys.stderr)
+        return 2
     paths = hdr_files(a.hdri, "train")
     if not paths:
         print(f"{a.hdri}: no HDR panoramas in its training split", file=sys.stderr)
         return 2
-    model = fit_model(paths)
+    model = fit_model(paths, jpeg=a.jpeg)
     model.save(a.out)
     terms = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.coef, model.features))
     small = " ".join(f"{c:+.3f}·{f}" for c, f in zip(model.small_coef, model.features))

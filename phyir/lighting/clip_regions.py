@@ -3,8 +3,9 @@
 A lamp, a window or a softbox clips at 1.0 in an 8-bit panorama. Where only some of a pixel's
 channels clipped (the coloured halo of a lamp, a warm wall by a fire), the others are measurements:
 :func:`fill_partial` gives the clipped channels the hue of the region's surroundings and the
-model's ``partial_gain``, and nothing more. Where all three clipped (the region's white core), how
-far above the clip it was is written in the surroundings: the region's solid angle, where it sits
+model's ``partial_gain``, and nothing more. Where all three clipped (the region's white core; in a
+JPEG, all three near the clip: :func:`white_pixels`), how far above the clip it was is written in
+the surroundings: the region's solid angle, where it sits
 (a ceiling lamp, a window at the horizon), whether all three channels clipped (white) or one
 (coloured light), and the profile of the unclipped rings around it out to 22 degrees: how far its
 glow reaches over the wall and how sharply its edge ends, which tells a lamp from a wall or a
@@ -12,7 +13,8 @@ window barely over the clip. :class:`RegionModel` maps those :data:`FEATURES` of
 the log of its white core's true mean luminance over the panorama's median: ridge regressions (one
 law for big regions, one for small ones) fitted on real HDR panoramas photographed by the
 evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
-``phyir/assets/clip_regions.json``). :mod:`phyir.lighting.hdr_recovery` applies it.
+``phyir/assets/clip_regions.json``, and ``clip_regions_jpeg.json`` for JPEG input, fitted on the same
+copies through a JPEG encoder too). :mod:`phyir.lighting.hdr_recovery` applies it.
 """
 
 from __future__ import annotations
@@ -38,8 +40,12 @@ FEATURES = ("log_area", "sin_lat", "white", "perimeter", "edge_chroma", "clipped
 AROUND = 8  # clipped_around: the share of clipped pixels from AROUND to RADII[-1] pixels away
 # (regions are 8-connected at LABEL_ROWS = 64 rows, so none is nearer than 8 pixels at 512)
 HUE_RING = 4  # pixels at PROFILE_ROWS (1.4 degrees): the unclipped band whose colour fill_partial gives
+# a clipped pixel whose channels are all above this fraction of the clip is white (a lamp's core): a
+# JPEG's chroma subsampling and ringing leave a clipped white core's channels a few codes under 255
+WHITE_FRACTION = 0.96
 BRIGHT, NEAR_CLIP = 0.5, 0.85  # ring pixels above these fractions of the clip count as bright, near clip
 MODEL_PATH = Path(__file__).resolve().parents[1] / "assets" / "clip_regions.json"
+JPEG_MODEL_PATH = MODEL_PATH.with_name("clip_regions_jpeg.json")  # the law for JPEG input
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,7 @@ class RegionModel:
     small_intercept: float = 0.0
     small_coef: tuple[float, ...] = ()
     partial_gain: float = 1.0
+    jpeg: int = 0  # the JPEG quality its copies also went through (0: none): the law for JPEG input
 
     def log_gain(self, feats: Tensor) -> Tensor:
         """[n] predicted log(mean luminance / median) of regions with features ``feats [n, F]``."""
@@ -88,7 +95,8 @@ class RegionModel:
         m = RegionModel(float(d["intercept"]), tuple(float(c) for c in d["coef"]), tuple(d["features"]),
                         tuple(d.get("fitted_on", ())), int(d.get("regions", 0)), float(d.get("ridge", 0.0)),
                         float(d.get("small_below_sr", 0.0)), float(d.get("small_intercept", 0.0)),
-                        tuple(float(c) for c in d.get("small_coef", ())), float(d.get("partial_gain", 1.0)))
+                        tuple(float(c) for c in d.get("small_coef", ())), float(d.get("partial_gain", 1.0)),
+                        int(d.get("jpeg", 0)))
         sizes = {len(m.coef)} | ({len(m.small_coef)} if m.small_coef else set())
         return m if m.features == FEATURES and sizes == {len(FEATURES)} else None
 
@@ -125,15 +133,21 @@ class Coarse:
         return Coarse(image, clip, rows, cols)
 
 
+def white_pixels(ldr: Tensor, clip: float) -> Tensor:
+    """[H,W]: the pixels of a linear 8-bit panorama [3,H,W] that clipped white (some channel at
+    ``clip``, every channel above WHITE_FRACTION of it)."""
+    return (ldr >= clip).any(0) & (ldr >= WHITE_FRACTION * clip).all(0)
+
+
 def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0, coarse: Coarse | None = None) -> Tensor:
     """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (some channels at ``clip``, not
-    all) have their clipped channels raised to the hue of the unclipped band around the clipped
-    pixels, matched to the pixel's measured channels, then the pixel times ``gain``. Every other
-    pixel is returned as it is (white cores are :class:`RegionModel`'s). ``coarse``: the panorama's
-    :class:`Coarse` view, where the caller has it."""
+    white: :func:`white_pixels`) have their clipped channels raised to the hue of the unclipped band
+    around the clipped pixels, matched to the pixel's measured channels, then the pixel times
+    ``gain``. Every other pixel is returned as it is (white cores are :class:`RegionModel`'s).
+    ``coarse``: the panorama's :class:`Coarse` view, where the caller has it."""
     x = ldr.float()
     over = x >= clip
-    partial = over.any(0) & ~over.all(0)
+    partial = over.any(0) & ~white_pixels(x, clip)
     if not bool(partial.any()):
         return x.clone()  # (a new tensor either way: callers write into it)
     hue = _band_hue(coarse or Coarse.of(x, over.any(0)))[:, None]
@@ -177,7 +191,7 @@ def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: 
     H, W = ldr.shape[-2:]
     lum = luminance(ldr) if lum is None else lum
     sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
-    area, (lat, white) = region_means(labels, n, sin_lat, (ldr >= clip).all(0))
+    area, (lat, white) = region_means(labels, n, sin_lat, white_pixels(ldr, clip))
     med = max(float(lum.median()), 1e-6)
     profile = _surround_profiles(coarse or Coarse.of(ldr, clipped), labels, n, clip, med)
     return torch.cat((torch.stack((torch.log(area.clamp_min(1e-12)), lat, white), 1), profile), 1)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -26,12 +27,14 @@ from torch import Tensor
 from phyir import pano
 from phyir.color import luminance
 from phyir.lighting.clip_regions import (
+    JPEG_MODEL_PATH,
     MODEL_PATH,
     Coarse,
     RegionModel,
     fill_partial,
     region_features,
     region_means,
+    white_pixels,
 )
 from phyir.lighting.extract import components
 
@@ -51,7 +54,7 @@ class Recovery:
     regions: int
     solid_angle: float  # steradians of clipped pixels
     energy_gain: float  # luminous energy of the panorama after / before
-    method: str = "gain"  # "gain", "regions" (this module) or "clipnet" (phyir.lighting.ldr_to_hdr)
+    method: str = "gain"  # "gain", "regions", "regions-jpeg" (this module) or "clipnet" (ldr_to_hdr)
 
 
 def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Tensor, int]:
@@ -67,8 +70,9 @@ def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Te
 
 
 def white_cores(image: Tensor, labels: Tensor, clip: float = CLIP_LEVEL) -> Tensor:
-    """``labels`` [H,W] kept only where all three channels of ``image`` clipped (-1 elsewhere)."""
-    return labels.masked_fill((image < clip).any(0), -1)
+    """``labels`` [H,W] kept only where ``image`` clipped white (-1 elsewhere;
+    :func:`phyir.lighting.clip_regions.white_pixels`)."""
+    return labels.masked_fill(~white_pixels(image, clip), -1)
 
 
 def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
@@ -76,9 +80,13 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     """The LDR panorama ``[3,H,W]`` (linear, clipped at ``clip``) with its clipped regions brought to
     the calibrated gain (see the module doc), or, with a ``model``, to the radiance it predicts for
     each (:class:`phyir.lighting.clip_regions.RegionModel`; "shipped": ``phyir/assets/
-    clip_regions.json``, None where it is missing); unclipped pixels are unchanged."""
+    clip_regions.json``, "shipped-jpeg": the law for JPEG input, ``clip_regions_jpeg.json``, else
+    the first; None where the files are missing); unclipped pixels are unchanged."""
     if isinstance(model, str):
-        model = _shipped_model()
+        if model not in ("shipped", "shipped-jpeg"):
+            raise ValueError(f"unknown region model {model!r}")
+        jpeg_law = _shipped_model(JPEG_MODEL_PATH) if model == "shipped-jpeg" else None
+        model = jpeg_law or _shipped_model(MODEL_PATH)
     x = image.float()
     H, W = x.shape[-2:]
     clipped, labels, n = clipped_regions(x, clip)
@@ -107,10 +115,10 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     before = float((lum.sum(-1, keepdim=True) * omega).sum())
     after = float((luminance(out).sum(-1, keepdim=True) * omega).sum())
     clipped_sr = float(omega.expand(H, W)[clipped].sum())
-    method = "gain" if model is None else "regions"
+    method = "gain" if model is None else "regions-jpeg" if model.jpeg else "regions"
     return out, Recovery(boosted, clipped_sr, after / max(before, 1e-30), method)
 
 
 @functools.cache
-def _shipped_model() -> RegionModel | None:
-    return RegionModel.load(MODEL_PATH)
+def _shipped_model(path: Path) -> RegionModel | None:
+    return RegionModel.load(path)

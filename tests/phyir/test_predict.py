@@ -268,3 +268,17 @@ def test_dataset_means_baseline(tmp_path):
     assert torch.allclose(b.probes[1, 2] * exposure_scale(gt.image), means["probe"], rtol=1e-4)
     assert float(b.roughness.max() - b.roughness.min()) == 0
     assert float(b.depth[0, 0, 0]) == pytest.approx(float(means["depth"]))
+
+
+def test_a_jpegs_clipped_light_takes_the_jpeg_law(tmp_path, model, image):
+    """predict records the input's format; an 8-bit PNG's clipped regions take the region law, a
+    JPEG's the law fitted on JPEG copies (phyir/assets/clip_regions_jpeg.json)."""
+    bright = image.clone()
+    bright[:, 10:20, 40:60] = 4.0  # a lamp: clipped in the 8-bit files
+    methods = {}
+    for suffix in ("png", "jpg"):
+        path = tmp_path / f"room.{suffix}"
+        save_panorama(bright.clamp(0, 1), path)
+        sc = phyir.predict(path, model=model, outputs=("depth",), probes=None)
+        methods[sc.meta["source_format"]] = sc.meta["predict.hdr_recovery"].split(":")[0]
+    assert methods == {"png": "regions", "jpeg": "regions-jpeg"}

@@ -17,11 +17,16 @@ from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, recover_cli
 H, W = 128, 256
 
 
+def degrees_from_front(h: int = H, w: int = W) -> torch.Tensor:
+    """[h,w] angle in degrees between each pixel's direction and the panorama's centre (-z)."""
+    d = pano.directions(h, w)
+    return torch.rad2deg(torch.acos((d * torch.tensor([0.0, 0.0, -1.0])[:, None, None]).sum(0).clamp(-1, 1)))
+
+
 def lamp_panorama(ring: float) -> torch.Tensor:
     """A grey room (0.18) with one clipped white disk of 8° radius on the horizon, its surroundings
     out to 20° lit at ``ring`` (linear)."""
-    d = pano.directions(H, W)
-    angle = torch.rad2deg(torch.acos((d * torch.tensor([0.0, 0.0, -1.0])[:, None, None]).sum(0).clamp(-1, 1)))
+    angle = degrees_from_front()
     img = torch.full((3, H, W), 0.18)
     img[:, angle < 20] = ring
     img[:, angle < 8] = 1.0
@@ -124,8 +129,7 @@ def test_the_shipped_model_has_both_laws():
 def halo_panorama() -> torch.Tensor:
     """``lamp_panorama``'s white disk inside a warm halo whose red channel clipped (8-12°: red 1.0,
     green 0.6, blue 0.3), in an unclipped band of hue (2, 1, 0.5) out to 20°."""
-    d = pano.directions(H, W)
-    angle = torch.rad2deg(torch.acos((d * torch.tensor([0.0, 0.0, -1.0])[:, None, None]).sum(0).clamp(-1, 1)))
+    angle = degrees_from_front()
     img = torch.full((3, H, W), 0.18)
     img[:, angle < 20] = torch.tensor([0.8, 0.4, 0.2])[:, None]
     img[:, angle < 12] = torch.tensor([1.0, 0.6, 0.3])[:, None]
@@ -172,3 +176,37 @@ def test_recovery_never_writes_into_its_input():
         before = ldr.clone()
         recover_clipped(ldr, model=RegionModel(math.log(40.0), (0.0,) * len(FEATURES)))
         assert torch.equal(ldr, before)
+
+
+def test_a_jpegs_white_core_is_white():
+    """Through a JPEG encoder (quality 95, chroma subsampled) most of a clipped white disk inside an
+    orange halo comes back a few codes under 255 in green or blue: white_pixels still takes it as the
+    white core, where requiring every channel at the clip keeps under a third of it; the halo, whose
+    measured channels are well under the clip, is not white."""
+    from phyir.learn.camera import jpeg_linear
+    from phyir.lighting.clip_regions import white_pixels
+
+    h, w = 256, 512  # the disk 11 pixels across its radius (a JPEG's chroma blocks are 16)
+    angle = degrees_from_front(h, w)
+    img = torch.full((3, h, w), 0.18)
+    img[:, angle < 20] = torch.tensor([0.8, 0.4, 0.2])[:, None]
+    img[:, angle < 12] = torch.tensor([1.0, 0.6, 0.3])[:, None]
+    img[:, angle < 8] = 1.0
+    ldr = jpeg_linear(img, 95)
+    disk, halo = angle < 7, (angle > 9) & (angle < 11)
+    white = white_pixels(ldr, CLIP_LEVEL)
+    every_channel = (ldr >= CLIP_LEVEL).all(0)
+    assert float(white[disk].float().mean()) > 0.8 and float(every_channel[disk].float().mean()) < 0.35
+    assert not bool(white[halo].any())
+    assert torch.equal(white_pixels(img, CLIP_LEVEL), angle < 8)  # as it is: exactly the disk
+
+
+def test_the_shipped_laws():
+    """Both shipped laws, the JPEG one fitted on JPEG copies too; recover_clipped names the one used."""
+    from phyir.lighting.clip_regions import JPEG_MODEL_PATH
+
+    jpeg = RegionModel.load(JPEG_MODEL_PATH)
+    assert jpeg is not None and jpeg.jpeg == 90 and jpeg.fitted_on == RegionModel.load().fitted_on
+    ldr = lamp_panorama(0.5)
+    assert recover_clipped(ldr, model="shipped")[1].method == "regions"
+    assert recover_clipped(ldr, model="shipped-jpeg")[1].method == "regions-jpeg"
