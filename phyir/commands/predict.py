@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
             note = "; geometry from the input mirrored through the horizon (the upright pass's normals " \
                 "faced away from the camera)" if report.gm_pass == "mirrored" else ""
             if report.hdr_recovery is not None:
-                law = " (the JPEG law)" if report.hdr_recovery.method == "regions-jpeg" else ""
+                law = " by the JPEG law" if report.hdr_recovery.method == "regions-jpeg" else ""
                 note += f"; HDR recovered in {report.hdr_recovery.regions} clipped regions{law} " \
                         f"(energy x{report.hdr_recovery.energy_gain:.2f})"
             if report.normals_from == "depth":
