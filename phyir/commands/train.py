@@ -91,7 +91,11 @@ def options(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from phyir.learn.distributed import teardown_dist
     from phyir.learn.train import TrainConfig, train
 
-    result = train(TrainConfig.from_dict(options(args)))
+    try:
+        result = train(TrainConfig.from_dict(options(args)))
+    finally:
+        teardown_dist()
     return 0 if result["status"] in ("done", "stopped") else 1

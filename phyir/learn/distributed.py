@@ -61,6 +61,14 @@ def setup_dist(device: str) -> Dist:
     return Dist(rank, world, local, dev)
 
 
+def teardown_dist() -> None:
+    """Leave the process group, where one was joined: its threads are stopped here, not by the
+    interpreter's exit (which can abort a process with "terminate called without an active
+    exception" after the work is done)."""
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
+
+
 def gather(obj, d: Dist) -> list:
     if d.world == 1:
         return [obj]
