@@ -51,12 +51,11 @@ def methods(clipnet: str | os.PathLike | None = None, region_model=None,
     :class:`phyir.lighting.clip_regions.RegionModel` where present — with ``jpeg``, the law for JPEG
     input, as predict takes for a JPEG file — or ``region_model``) and, where its weights are present
     (``clipnet``, default the shipped ones), clipnet."""
-    from phyir.lighting.clip_regions import JPEG_MODEL_PATH, RegionModel
-    from phyir.lighting.hdr_recovery import recover_clipped
+    from phyir.lighting.hdr_recovery import recover_clipped, shipped_model
     from phyir.lighting.ldr_to_hdr import load_clipnet, recover
 
     out = {"naive": _naive, "gain": _gain}
-    region_model = region_model or (jpeg and RegionModel.load(JPEG_MODEL_PATH)) or RegionModel.load()
+    region_model = region_model or shipped_model(jpeg)
     if region_model is not None:
         out["regions"] = lambda ldr: recover_clipped(ldr, model=region_model)[0]
     model = load_clipnet(clipnet)

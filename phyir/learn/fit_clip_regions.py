@@ -32,9 +32,9 @@ from phyir.lighting.clip_regions import (
     FEATURES,
     RegionModel,
     fill_partial,
+    partly_clipped,
     region_features,
     region_means,
-    white_pixels,
 )
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, white_cores
 
@@ -62,7 +62,7 @@ def region_samples(ldr: Tensor, truth: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 def partial_energy(ldr: Tensor, truth: Tensor) -> tuple[float, float]:
     """(true, :func:`fill_partial`'s) luminous energy of the partly clipped pixels of ``ldr``."""
-    partial = (ldr >= CLIP_LEVEL).any(0) & ~white_pixels(ldr, CLIP_LEVEL)
+    partial = partly_clipped(ldr, CLIP_LEVEL)
     H, W = ldr.shape[-2:]
     omega = (pano.solid_angles(H, 1) / W).expand(H, W)[partial]
     true = float((luminance(truth)[partial] * omega).sum())

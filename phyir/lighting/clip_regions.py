@@ -5,16 +5,16 @@ channels clipped (the coloured halo of a lamp, a warm wall by a fire), the other
 :func:`fill_partial` gives the clipped channels the hue of the region's surroundings and the
 model's ``partial_gain``, and nothing more. Where all three clipped (the region's white core; in a
 JPEG, all three near the clip: :func:`white_pixels`), how far above the clip it was is written in
-the surroundings: the region's solid angle, where it sits
-(a ceiling lamp, a window at the horizon), whether all three channels clipped (white) or one
-(coloured light), and the profile of the unclipped rings around it out to 22 degrees: how far its
-glow reaches over the wall and how sharply its edge ends, which tells a lamp from a wall or a
-window barely over the clip. :class:`RegionModel` maps those :data:`FEATURES` of the region to
-the log of its white core's true mean luminance over the panorama's median: ridge regressions (one
-law for big regions, one for small ones) fitted on real HDR panoramas photographed by the
-evaluation's camera (:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are
-``phyir/assets/clip_regions.json``, and ``clip_regions_jpeg.json`` for JPEG input, fitted on the same
-copies through a JPEG encoder too). :mod:`phyir.lighting.hdr_recovery` applies it.
+the surroundings: the region's solid angle, where it sits (a ceiling lamp, a window at the
+horizon), whether all three channels clipped (white) or one (coloured light), and the profile of
+the unclipped rings around it out to 22 degrees: how far its glow reaches over the wall and how
+sharply its edge ends, which tells a lamp from a wall or a window barely over the clip.
+:class:`RegionModel` maps those :data:`FEATURES` of the region to the log of its white core's true
+mean luminance over the panorama's median: ridge regressions (one law for big regions, one for small
+ones) fitted on real HDR panoramas photographed by the evaluation's camera
+(:mod:`phyir.learn.fit_clip_regions`; the shipped coefficients are ``phyir/assets/clip_regions.json``,
+and ``clip_regions_jpeg.json`` for JPEG input, fitted on the same copies through a JPEG encoder too).
+:mod:`phyir.lighting.hdr_recovery` applies it.
 """
 
 from __future__ import annotations
@@ -139,17 +139,24 @@ def white_pixels(ldr: Tensor, clip: float) -> Tensor:
     return (ldr >= clip).any(0) & (ldr >= WHITE_FRACTION * clip).all(0)
 
 
-def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0, coarse: Coarse | None = None) -> Tensor:
-    """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (some channels at ``clip``, not
-    white: :func:`white_pixels`) have their clipped channels raised to the hue of the unclipped band
-    around the clipped pixels, matched to the pixel's measured channels, then the pixel times
-    ``gain``. Every other pixel is returned as it is (white cores are :class:`RegionModel`'s).
-    ``coarse``: the panorama's :class:`Coarse` view, where the caller has it."""
+def partly_clipped(ldr: Tensor, clip: float, white: Tensor | None = None) -> Tensor:
+    """[H,W]: the pixels with some channel at ``clip`` that are not white (:func:`white_pixels`;
+    ``white``: that mask, where the caller has it)."""
+    return (ldr >= clip).any(0) & ~(white_pixels(ldr, clip) if white is None else white)
+
+
+def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0, coarse: Coarse | None = None,
+                 white: Tensor | None = None) -> Tensor:
+    """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (:func:`partly_clipped`) have
+    their clipped channels raised to the hue of the unclipped band around the clipped pixels, matched
+    to the pixel's measured channels, then the pixel times ``gain``. Every other pixel is returned
+    as it is (white cores are :class:`RegionModel`'s). ``coarse`` (the panorama's :class:`Coarse`
+    view) and ``white`` (:func:`white_pixels`): where the caller has them."""
     x = ldr.float()
-    over = x >= clip
-    partial = over.any(0) & ~white_pixels(x, clip)
+    partial = partly_clipped(x, clip, white)
     if not bool(partial.any()):
         return x.clone()  # (a new tensor either way: callers write into it)
+    over = x >= clip
     hue = _band_hue(coarse or Coarse.of(x, over.any(0)))[:, None]
     # only the partly clipped pixels are gathered (a 360 camera's image is 200 MB)
     xp, op = x[:, partial], over[:, partial]
@@ -183,15 +190,17 @@ def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Te
 
 
 def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float,
-                    lum: Tensor | None = None, coarse: Coarse | None = None) -> Tensor:
+                    lum: Tensor | None = None, coarse: Coarse | None = None,
+                    white: Tensor | None = None) -> Tensor:
     """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
     [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
-    [3,H,W]`` clipped at ``clip``; ``lum`` (its luminance [H,W]) and ``coarse`` (its
-    :class:`Coarse` view): where the caller has them."""
+    [3,H,W]`` clipped at ``clip``; ``lum`` (its luminance [H,W]), ``coarse`` (its :class:`Coarse`
+    view) and ``white`` (:func:`white_pixels`): where the caller has them."""
     H, W = ldr.shape[-2:]
     lum = luminance(ldr) if lum is None else lum
+    white = white_pixels(ldr, clip) if white is None else white
     sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
-    area, (lat, white) = region_means(labels, n, sin_lat, white_pixels(ldr, clip))
+    area, (lat, white) = region_means(labels, n, sin_lat, white)
     med = max(float(lum.median()), 1e-6)
     profile = _surround_profiles(coarse or Coarse.of(ldr, clipped), labels, n, clip, med)
     return torch.cat((torch.stack((torch.log(area.clamp_min(1e-12)), lat, white), 1), profile), 1)
@@ -207,8 +216,8 @@ def _surround_profiles(coarse: Coarse, labels: Tensor, n: int, clip: float, med:
     (wrapping in longitude), not over the whole panorama."""
     h, R = PROFILE_ROWS, RADII[-1]
     img, clip_map, lab = coarse.image, coarse.clipped, labels[coarse.rows][:, coarse.cols]
-    lum = luminance(img) / med
-    chroma = img / luminance(img).clamp_min(1e-6)
+    img_lum = luminance(img)
+    lum, chroma = img_lum / med, img / img_lum.clamp_min(1e-6)
     omega = pano.solid_angles(h, 1).expand(h, 2 * h)
 
     def pad(t: Tensor, value: float = 0.0) -> Tensor:  # R pixels: wrapping in longitude, rows past the poles

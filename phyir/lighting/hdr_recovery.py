@@ -69,10 +69,11 @@ def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Te
     return clipped, lab.masked_fill_(~clipped, -1), n
 
 
-def white_cores(image: Tensor, labels: Tensor, clip: float = CLIP_LEVEL) -> Tensor:
+def white_cores(image: Tensor, labels: Tensor, clip: float = CLIP_LEVEL,
+                white: Tensor | None = None) -> Tensor:
     """``labels`` [H,W] kept only where ``image`` clipped white (-1 elsewhere;
-    :func:`phyir.lighting.clip_regions.white_pixels`)."""
-    return labels.masked_fill(~white_pixels(image, clip), -1)
+    :func:`phyir.lighting.clip_regions.white_pixels`; ``white``: that mask, where the caller has it)."""
+    return labels.masked_fill(~(white_pixels(image, clip) if white is None else white), -1)
 
 
 def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
@@ -85,8 +86,7 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     if isinstance(model, str):
         if model not in ("shipped", "shipped-jpeg"):
             raise ValueError(f"unknown region model {model!r}")
-        jpeg_law = _shipped_model(JPEG_MODEL_PATH) if model == "shipped-jpeg" else None
-        model = jpeg_law or _shipped_model(MODEL_PATH)
+        model = shipped_model(jpeg=model == "shipped-jpeg")
     x = image.float()
     H, W = x.shape[-2:]
     clipped, labels, n = clipped_regions(x, clip)
@@ -97,12 +97,13 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     lum = luminance(x)
     med = float(lum.median())
     if model is not None:  # the law lifts the white cores; the partly clipped pixels are filled
-        coarse = Coarse.of(x, clipped)
-        feats = region_features(x, clipped, labels, n, clip, lum, coarse)
-        labels = white_cores(x, labels, clip)
+        # the coarse view and the white mask once, for the features, the cores and the fill
+        coarse, white = Coarse.of(x, clipped), white_pixels(x, clip)
+        feats = region_features(x, clipped, labels, n, clip, lum, coarse, white)
+        labels = white_cores(x, labels, clip, white)
         area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * torch.exp(model.log_gain(feats))
-        out = fill_partial(x, clip, model.partial_gain, coarse)
+        out = fill_partial(x, clip, model.partial_gain, coarse, white)
     else:
         area, (mean,) = region_means(labels, n, lum)
         target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
@@ -119,6 +120,12 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     return out, Recovery(boosted, clipped_sr, after / max(before, 1e-30), method)
 
 
+def shipped_model(jpeg: bool = False) -> RegionModel | None:
+    """The shipped :class:`phyir.lighting.clip_regions.RegionModel`: with ``jpeg`` the law for JPEG
+    input, where its file is present, else the first; None where neither is."""
+    return (_load_model(JPEG_MODEL_PATH) if jpeg else None) or _load_model(MODEL_PATH)
+
+
 @functools.cache
-def _shipped_model(path: Path) -> RegionModel | None:
+def _load_model(path: Path) -> RegionModel | None:
     return RegionModel.load(path)
