@@ -4,10 +4,12 @@ Each of the training panoramas of ``hdri-indoor`` (its README's split; the valid
 read) is measured by ``phyir eval --ldr-light``'s protocol
 (:func:`phyir.evaluation.ldr_light.evaluate_panorama`, the ``regions`` method) with the
 :class:`phyir.lighting.clip_regions.RegionModel` fitted on all the others
-(:func:`phyir.learn.fit_clip_regions.fit_model`): the training split's own held-out figures, to
-compare changes to the model by without looking at the validation split.
+(:func:`phyir.learn.fit_clip_regions.fit_samples`): the training split's own held-out figures, to
+compare changes to the model by without looking at the validation split. ``--synth DIR`` adds the
+procedural rooms of a ``phyir synth`` folder to every fit (what path-traced rooms add to the real
+ones; at 512x1024, the real panoramas' size: ``phyir synth --size 512x1024 --probe-grid none``).
 
-    python -m benchmarks.clip_regions_leave_one_out --hdri ../shared/hdri-indoor
+    python -m benchmarks.clip_regions_leave_one_out --hdri ../shared/hdri-indoor [--synth DIR]
 """
 
 from __future__ import annotations
@@ -19,18 +21,22 @@ import sys
 from pathlib import Path
 
 from phyir.evaluation.ldr_light import evaluate_panorama
-from phyir.learn.fit_clip_regions import fit_model
+from phyir.learn.fit_clip_regions import fit_samples, panorama_samples
 from phyir.learn.ldr_pairs import hdr_files
 
 
-def leave_one_out(paths: list[Path], log=print) -> dict[str, float]:
+def leave_one_out(paths: list[Path], extra: list[Path] = (), log=print) -> dict[str, float]:
     """Each panorama measured (:func:`phyir.evaluation.ldr_light.evaluate_panorama`, ``regions``)
-    with the model fitted on all the others: the training split's own held-out figures. Returns the
+    with the model fitted on all the others and on ``extra`` (each panorama's samples taken once):
+    the training split's own held-out figures. Returns the
     medians of the diffuse and matte-silver rel L1 (and the naive copy's), the rooms whose diffuse
     intensity ratio is within 0.6-1.6 and the clipped regions within 2x, pooled."""
+    samples = {p: panorama_samples(p) for p in paths}
+    added = [panorama_samples(p) for p in extra]
     rows = []
     for p in paths:
-        row = evaluate_panorama(p, region_model=fit_model([q for q in paths if q != p]))
+        model = fit_samples([samples[q] for q in paths if q != p] + added)
+        row = evaluate_panorama(p, region_model=model)
         r, naive = row["regions"], row["naive"]
         rows.append((r, naive))
         log(f"{p.name}: diffuse rel L1 {r['diffuse.rel_l1']:.3f} (naive {naive['diffuse.rel_l1']:.3f}), "
@@ -49,13 +55,20 @@ def leave_one_out(paths: list[Path], log=print) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True, help="folder of real HDR panoramas (hdri-indoor)")
+    ap.add_argument("--synth", type=Path, metavar="DIR",
+                    help="a phyir synth folder whose rooms join every fit")
     a = ap.parse_args(argv)
     paths = hdr_files(a.hdri, "train")
+    extra = sorted(a.synth.glob("*.exr")) if a.synth else []
+    if a.synth and not extra:
+        print(f"{a.synth}: no .exr rooms", file=sys.stderr)
+        return 2
     if len(paths) < 2:
         print(f"{a.hdri}: fewer than two HDR panoramas in its training split", file=sys.stderr)
         return 2
-    s = leave_one_out(paths)
-    print(f"leave one out, {s['rooms']} panoramas: diffuse rel L1 {s['diffuse']:.3f} (naive "
+    s = leave_one_out(paths, extra)
+    added = f" (+{len(extra)} procedural rooms in every fit)" if extra else ""
+    print(f"leave one out, {s['rooms']} panoramas{added}: diffuse rel L1 {s['diffuse']:.3f} (naive "
           f"{s['diffuse_naive']:.3f}), matte silver {s['matte']:.3f} (naive {s['matte_naive']:.3f}), "
           f"{s['rooms_in_band']}/{s['rooms']} rooms within 0.6-1.6, regions within 2x "
           f"{s['regions_within_2x']:.0%}")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -83,33 +84,60 @@ def fit(X: Tensor, y: Tensor, weight: Tensor, ridge: float = RIDGE) -> tuple[flo
     return float(beta[0] - (coef * mu).sum()), tuple(float(b) for b in coef)
 
 
-def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge: float = RIDGE,
-              small_below_sr: float = SMALL_BELOW_SR, jpeg: int | None = None) -> RegionModel:
-    """The law fitted on ``paths``' copies at each of ``exposures``; with ``jpeg``, each copy also
-    through a JPEG encoder at that quality (the law for JPEG input: its ringing and chroma
-    subsampling change what a region's surroundings look like). The partly clipped pixels' gain comes
-    from the copies as they are either way (in a JPEG, most of them are a white core's fringe, which
-    the law already covers)."""
+@dataclass(frozen=True)
+class PanoramaSamples:
+    """What one panorama gives the fit: its copies' region rows (:func:`region_samples`, stacked) and
+    the true and :func:`fill_partial`'s energy of their partly clipped pixels."""
+
+    name: str
+    features: Tensor  # [n, F]
+    log_luminance: Tensor  # [n]
+    core_sr: Tensor  # [n]
+    partial: tuple[float, float]
+
+
+def panorama_samples(path: Path, exposures: tuple[float, ...] = EXPOSURES,
+                     jpeg: int | None = None) -> PanoramaSamples:
+    """``path`` photographed at each of ``exposures``; with ``jpeg``, each copy also through a JPEG
+    encoder at that quality (the law for JPEG input: its ringing and chroma subsampling change what a
+    region's surroundings look like). The partly clipped pixels' energies come from the copies as
+    they are either way (in a JPEG, most of them are a white core's fringe, which the law covers)."""
     from phyir.io import load_panorama
 
+    hdr = torch.nan_to_num(load_panorama(path).float(), nan=0.0, posinf=0.0).clamp_min(0)
     X, y, w = [], [], []
     partial = torch.zeros(2, dtype=torch.float64)
-    for p in paths:
-        hdr = torch.nan_to_num(load_panorama(p).float(), nan=0.0, posinf=0.0).clamp_min(0)
-        for e in exposures:  # each exposure photographs the panorama once
-            ldr, s = ldr_copy(hdr, e)
-            partial += torch.tensor(partial_energy(ldr, hdr * s), dtype=torch.float64)
-            for copy in (ldr,) if jpeg is None else (ldr, jpeg_linear(ldr, jpeg)):
-                f, t, a = region_samples(copy, hdr * s)
-                X.append(f), y.append(t), w.append(a)
-    X_, y_, w_ = torch.cat(X), torch.cat(y), torch.cat(w)
-    intercept, coef = fit(X_, y_, w_, ridge)
-    small = X_[:, FEATURES.index("log_area")] < math.log(small_below_sr)  # as RegionModel splits them
-    small_intercept, small_coef = fit(X_[small], y_[small], torch.ones(int(small.sum()), dtype=torch.float64),
+    for e in exposures:  # each exposure photographs the panorama once
+        ldr, s = ldr_copy(hdr, e)
+        partial += torch.tensor(partial_energy(ldr, hdr * s), dtype=torch.float64)
+        for copy in (ldr,) if jpeg is None else (ldr, jpeg_linear(ldr, jpeg)):
+            f, t, a = region_samples(copy, hdr * s)
+            X.append(f), y.append(t), w.append(a)
+    return PanoramaSamples(Path(path).name, torch.cat(X), torch.cat(y), torch.cat(w),
+                           (float(partial[0]), float(partial[1])))
+
+
+def fit_samples(samples: list[PanoramaSamples], ridge: float = RIDGE, small_below_sr: float = SMALL_BELOW_SR,
+                jpeg: int | None = None) -> RegionModel:
+    """The law fitted on the panoramas' samples (``jpeg``: the quality they were taken through, as
+    the model records it)."""
+    X = torch.cat([s.features for s in samples])
+    y = torch.cat([s.log_luminance for s in samples])
+    w = torch.cat([s.core_sr for s in samples])
+    intercept, coef = fit(X, y, w, ridge)
+    small = X[:, FEATURES.index("log_area")] < math.log(small_below_sr)  # as RegionModel splits them
+    small_intercept, small_coef = fit(X[small], y[small], torch.ones(int(small.sum()), dtype=torch.float64),
                                       ridge) if int(small.sum()) > len(FEATURES) else (0.0, ())
-    return RegionModel(intercept, coef, FEATURES, tuple(p.name for p in paths), len(y_), ridge,
+    true, filled = (sum(s.partial[i] for s in samples) for i in (0, 1))
+    return RegionModel(intercept, coef, FEATURES, tuple(s.name for s in samples), len(y), ridge,
                        small_below_sr if small_coef else 0.0, small_intercept, small_coef,
-                       float(partial[0] / partial[1]) if partial[1] > 0 else 1.0, jpeg or 0)
+                       true / filled if filled > 0 else 1.0, jpeg or 0)
+
+
+def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge: float = RIDGE,
+              small_below_sr: float = SMALL_BELOW_SR, jpeg: int | None = None) -> RegionModel:
+    """The law fitted on ``paths``' copies at each of ``exposures`` (:func:`panorama_samples`)."""
+    return fit_samples([panorama_samples(p, exposures, jpeg) for p in paths], ridge, small_below_sr, jpeg)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ import torch
 
 from phyir import pano
 from phyir.color import luminance
-from phyir.learn.fit_clip_regions import fit
+from phyir.learn.fit_clip_regions import PanoramaSamples, fit, fit_samples, panorama_samples
 from phyir.lighting.clip_regions import FEATURES, RADII, RegionModel, _grown, region_features
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, recover_clipped
 
@@ -86,6 +86,39 @@ def test_the_ridge_fit_recovers_a_linear_law():
     y = 2.0 + X @ beta + 0.01 * torch.randn(400, generator=g, dtype=torch.float64)
     intercept, coef = fit(X, y, torch.rand(400, generator=g, dtype=torch.float64) + 0.5, ridge=1e-6)
     assert abs(intercept - 2.0) < 0.01 and max(abs(a - b) for a, b in zip(coef, beta.tolist())) < 0.01
+
+
+def test_the_fit_pools_the_panoramas_samples():
+    """Panoramas' samples fitted together give the law they share, and the partly clipped pixels'
+    gain is their true energy over the filled one summed over the panoramas."""
+    g = torch.Generator().manual_seed(1)
+    beta = torch.linspace(0.5, -0.5, len(FEATURES), dtype=torch.float64)
+    def samples(name: str, partial: tuple[float, float]) -> PanoramaSamples:
+        X = torch.randn(200, len(FEATURES), generator=g, dtype=torch.float64)
+        X[:, FEATURES.index("log_area")] = math.log(0.05)  # one law: every region big
+        core_sr = torch.rand(200, generator=g, dtype=torch.float64) + 0.1
+        return PanoramaSamples(name, X, 3.0 + X @ beta, core_sr, partial)
+    model = fit_samples([samples("a.hdr", (2.0, 1.0)), samples("b.hdr", (1.0, 1.0))], ridge=1e-6)
+    new = samples("c.hdr", (0.0, 0.0))
+    assert torch.allclose(model.log_gain(new.features), new.log_luminance, atol=1e-5)
+    assert model.partial_gain == 1.5 and model.fitted_on == ("a.hdr", "b.hdr") and model.regions == 400
+    assert model.small_coef == ()  # no small regions: no second law
+
+
+def test_a_panoramas_samples_are_its_lamps_true_luminance(tmp_path):
+    """A white lamp disk 300x the room's median, photographed by the evaluation camera: one region,
+    its core's true luminance over the copy's median is the lamp's over the room's."""
+    from phyir.io import save_panorama
+
+    angle = degrees_from_front()
+    hdr = torch.full((3, H, W), 0.5)
+    hdr[:, angle < 6] = 150.0
+    save_panorama(hdr, tmp_path / "lamp.exr")
+    s = panorama_samples(tmp_path / "lamp.exr", exposures=(1.0,))
+    assert s.name == "lamp.exr" and s.features.shape == (1, len(FEATURES))
+    assert abs(float(s.log_luminance[0]) - math.log(300.0)) < 0.01  # (the copy's median is 8-bit: 0.6 %)
+    disk = float(pano.solid_angles(H, W)[angle < 6].sum())
+    assert abs(float(s.core_sr[0]) / disk - 1) < 1e-6 and s.partial == (0.0, 0.0)
 
 
 def test_recovery_brings_the_region_to_the_models_luminance(tmp_path):
