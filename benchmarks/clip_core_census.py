@@ -8,7 +8,8 @@ hold most rooms' clipped light) and the share of the cores' light held by cores 
 :data:`BRIGHT` times the median. What the region model can learn is bounded by the cores of the
 training split; this says which rooms ask for more than that split holds.
 
-    python -m benchmarks.clip_core_census --hdri ../shared/hdri-indoor --panos ../shared/panos
+    python -m benchmarks.clip_core_census --hdri ../shared/hdri-indoor --panos ../shared/panos \
+        [--add FILE|DIR ...]
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from pathlib import Path
 
 import torch
 
-from phyir.learn.fit_clip_regions import panorama_samples
+from phyir.errors import InputError
+from phyir.learn.fit_clip_regions import panorama_files, panorama_samples
 from phyir.learn.ldr_pairs import hdr_files
 
 BRIGHT = 500.0  # x the median: brighter than all but one training room's cores
@@ -43,10 +45,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True, help="folder of real HDR panoramas (hdri-indoor)")
     ap.add_argument("--panos", type=Path, help="more panoramas, evaluation only")
+    ap.add_argument("--add", nargs="+", type=Path, default=[], metavar="FILE|DIR",
+                    help="panoramas one might add to the fit (fit_clip_regions --add)")
     a = ap.parse_args(argv)
     splits = {"training": hdr_files(a.hdri, "train"), "validation": hdr_files(a.hdri, "val")}
     if a.panos:
         splits["panos"] = sorted(a.panos.glob("*.hdr")) + sorted(a.panos.glob("*.exr"))
+    try:
+        if a.add:
+            splits["added"] = panorama_files(a.add)
+    except InputError as e:
+        print(f"--add: {e}", file=sys.stderr)
+        return 2
     if not any(splits.values()):
         print(f"{a.hdri}: no HDR panoramas", file=sys.stderr)
         return 2

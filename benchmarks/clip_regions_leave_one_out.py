@@ -5,11 +5,12 @@ read) is measured by ``phyir eval --ldr-light``'s protocol
 (:func:`phyir.evaluation.ldr_light.evaluate_panorama`, the ``regions`` method) with the
 :class:`phyir.lighting.clip_regions.RegionModel` fitted on all the others
 (:func:`phyir.learn.fit_clip_regions.fit_samples`): the training split's own held-out figures, to
-compare changes to the model by without looking at the validation split. ``--synth DIR`` adds the
-procedural rooms of a ``phyir synth`` folder to every fit (what path-traced rooms add to the real
-ones; at 512x1024, the real panoramas' size: ``phyir synth --size 512x1024 --probe-grid none``).
+compare changes to the model by without looking at the validation split. ``--add`` puts more
+panoramas in every fit (:func:`phyir.learn.fit_clip_regions.panorama_files`: other real HDR
+panoramas, or a ``phyir synth`` folder's procedural rooms, best at the real panoramas' 512x1024:
+``phyir synth --size 512x1024 --probe-grid none``).
 
-    python -m benchmarks.clip_regions_leave_one_out --hdri ../shared/hdri-indoor [--synth DIR]
+    python -m benchmarks.clip_regions_leave_one_out --hdri ../shared/hdri-indoor [--add FILE|DIR ...]
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import statistics
 import sys
 from pathlib import Path
 
+from phyir.errors import InputError
 from phyir.evaluation.ldr_light import evaluate_panorama
-from phyir.learn.fit_clip_regions import fit_samples, panorama_samples
+from phyir.learn.fit_clip_regions import fit_samples, panorama_files, panorama_samples
 from phyir.learn.ldr_pairs import hdr_files
 
 
@@ -55,19 +57,20 @@ def leave_one_out(paths: list[Path], extra: list[Path] = (), log=print) -> dict[
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True, help="folder of real HDR panoramas (hdri-indoor)")
-    ap.add_argument("--synth", type=Path, metavar="DIR",
-                    help="a phyir synth folder whose rooms join every fit")
+    ap.add_argument("--add", nargs="+", type=Path, default=[], metavar="FILE|DIR",
+                    help="more HDR panoramas (files or folders) in every fit")
     a = ap.parse_args(argv)
     paths = hdr_files(a.hdri, "train")
-    extra = sorted(a.synth.glob("*.exr")) if a.synth else []
-    if a.synth and not extra:
-        print(f"{a.synth}: no .exr rooms", file=sys.stderr)
+    try:
+        extra = panorama_files(a.add)
+    except InputError as e:
+        print(f"--add: {e}", file=sys.stderr)
         return 2
     if len(paths) < 2:
         print(f"{a.hdri}: fewer than two HDR panoramas in its training split", file=sys.stderr)
         return 2
     s = leave_one_out(paths, extra)
-    added = f" (+{len(extra)} procedural rooms in every fit)" if extra else ""
+    added = f" (+{len(extra)} panoramas in every fit)" if extra else ""
     print(f"leave one out, {s['rooms']} panoramas{added}: diffuse rel L1 {s['diffuse']:.3f} (naive "
           f"{s['diffuse_naive']:.3f}), matte silver {s['matte']:.3f} (naive {s['matte_naive']:.3f}), "
           f"{s['rooms_in_band']}/{s['rooms']} rooms within 0.6-1.6, regions within 2x "

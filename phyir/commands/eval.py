@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and per clipped region (phyir.evaluation.ldr_light)")
     parser.add_argument("--clipnet", metavar="FILE",
                         help="--ldr-light: ClipNet weights to measure (default: the shipped ones, if any)")
+    parser.add_argument("--region-model", metavar="FILE",
+                        help="--ldr-light: a clipped-region model to measure instead of the shipped one "
+                             "(JSON: python -m phyir.learn.fit_clip_regions)")
     parser.add_argument("--jpeg", metavar="Q", type=options.number(1, 100, integer=True),
                         help="--ldr-light: the 8-bit copies saved as JPEGs of quality Q (regions: the law "
                              "for JPEG input, as phyir predict uses for a .jpg)")
@@ -142,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         from phyir.evaluation.ldr_light import evaluate_ldr_light, markdown_ldr_light
 
         results = evaluate_ldr_light(args.ldr_light, log=lambda s: print(s, file=sys.stderr, flush=True),
-                                     clipnet=args.clipnet, jpeg=args.jpeg)
+                                     clipnet=args.clipnet, jpeg=args.jpeg, region_model=args.region_model)
         write_outputs(args, results, markdown_ldr_light(results))
         return 0
     if bool(args.data) == bool(args.predictions):

@@ -121,16 +121,33 @@ def evaluate_panorama(path: str | os.PathLike, clipnet: str | os.PathLike | None
 
 
 def evaluate_ldr_light(paths: list[str | os.PathLike], log: Callable[[str], None] | None = None,
-                       clipnet: str | os.PathLike | None = None, jpeg: int | None = None) -> dict:
+                       clipnet: str | os.PathLike | None = None, jpeg: int | None = None,
+                       region_model: str | os.PathLike | None = None) -> dict:
     """:func:`evaluate_panorama` on HDR panoramas (files, or folders of them); ``{"<name>/<method>":
     metrics}`` plus ``"median/<method>"`` and, per method, ``ratio_range`` of the diffuse sphere;
-    ``jpeg``: the copies saved as JPEGs of that quality."""
+    ``jpeg``: the copies saved as JPEGs of that quality; ``region_model``: the JSON file of a
+    :class:`phyir.lighting.clip_regions.RegionModel` to measure instead of the shipped one."""
     from phyir.evaluation.real import panorama_files
+    from phyir.lighting.clip_regions import RegionModel
+
+    law = None
+    if region_model is not None:
+        from phyir.errors import InputError
+        from phyir.io import check_input
+
+        check_input(region_model)
+        try:
+            law = RegionModel.load(region_model)
+        except (ValueError, KeyError, TypeError):  # not JSON, or JSON of something else
+            law = None
+        if law is None:
+            raise InputError(region_model, "not a clipped-region model of this version's features "
+                                           "(python -m phyir.learn.fit_clip_regions)")
 
     files = [f for f in panorama_files(paths) if f.suffix.lower() in (".hdr", ".exr")]
     out: dict[str, dict[str, float]] = {}
     for f in files:
-        for name, row in evaluate_panorama(f, clipnet, jpeg=jpeg).items():
+        for name, row in evaluate_panorama(f, clipnet, law, jpeg).items():
             out[f"{f.stem}/{name}"] = row
         if log is not None:
             d = {k.split("/")[1]: v["diffuse.rel_l1"] for k, v in out.items() if k.startswith(f"{f.stem}/")}

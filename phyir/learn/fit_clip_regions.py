@@ -9,6 +9,7 @@ core's solid angle (the big ones hold the energy), gives the model; a second, ea
 once, fitted on the regions under :data:`SMALL_BELOW_SR`, gives their law (most clipped regions are
 small and barely above the clip). The partly clipped pixels' ``partial_gain`` is their true energy
 over what :func:`phyir.lighting.clip_regions.fill_partial` gives them, summed over the panoramas.
+``--add`` fits on more HDR panoramas besides the training split (:func:`panorama_files`).
 
     python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --out phyir/assets/clip_regions.json
     python -m phyir.learn.fit_clip_regions --hdri ../shared/hdri-indoor --jpeg 90 \
@@ -140,13 +141,40 @@ def fit_model(paths: list[Path], exposures: tuple[float, ...] = EXPOSURES, ridge
     return fit_samples([panorama_samples(p, exposures, jpeg) for p in paths], ridge, small_below_sr, jpeg)
 
 
+def panorama_files(paths: list[Path]) -> list[Path]:
+    """The HDR panoramas that ``paths`` name: files as they are, folders' .hdr/.exr files (a ``phyir
+    synth`` folder's rooms too). A missing path, a folder without panoramas or a panorama of the
+    validation split (never fitted on) is an :class:`phyir.errors.InputError`."""
+    from phyir.errors import InputError
+    from phyir.learn.ldr_pairs import HDR_SUFFIXES, is_validation
+
+    out = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.suffix.lower() in HDR_SUFFIXES)
+            if not found:
+                raise InputError(p, "no .hdr or .exr panoramas in this folder")
+        elif p.is_file():
+            found = [p]
+        else:
+            raise InputError(p, "no such file or folder")
+        for f in found:
+            if is_validation(f):
+                raise InputError(f, "is in the validation split of hdri-indoor, which is never fitted on")
+        out += found
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    from phyir.errors import InputError
     from phyir.learn.ldr_pairs import hdr_files
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hdri", type=Path, required=True,
                     help="folder of real HDR panoramas (its training split is read)")
     ap.add_argument("--out", type=Path, required=True, help="the model's JSON file")
+    ap.add_argument("--add", nargs="+", type=Path, default=[], metavar="FILE|DIR",
+                    help="more HDR panoramas to fit on besides the training split (files or folders)")
     ap.add_argument("--jpeg", type=int, metavar="Q",
                     help="fit the law for JPEG input: each copy also through a JPEG encoder at quality Q")
     a = ap.parse_args(argv)
@@ -156,6 +184,11 @@ def main(argv: list[str] | None = None) -> int:
     paths = hdr_files(a.hdri, "train")
     if not paths:
         print(f"{a.hdri}: no HDR panoramas in its training split", file=sys.stderr)
+        return 2
+    try:
+        paths += panorama_files(a.add)
+    except InputError as e:
+        print(f"--add: {e}", file=sys.stderr)
         return 2
     model = fit_model(paths, jpeg=a.jpeg)
     model.save(a.out)

@@ -4,6 +4,7 @@ zero, and ``phyir eval --ldr-light`` end to end on generated HDR panoramas."""
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import torch
@@ -66,3 +67,27 @@ def test_the_results_table_of_an_ldr_light_run(tmp_path):
                         "| 50 % |")
     assert lines[3] == "| studio | 0.500 / 0.300 | 0.40 / 0.70 | 0.600 / 0.400 | 25 % |"
     assert lines[4].startswith("| **median** (ratio: range) | 0.200 / 0.200 | 0.40–1.00 / 0.40–1.00 |")
+
+
+def test_eval_ldr_light_measures_a_given_region_model(tmp_path, capsys):
+    """``--region-model FILE``: the law in the file is the one measured (a law that knows the lamp's
+    luminance gives the region back within the 8-bit median's rounding); a file that is not a law
+    is a one-line error naming it."""
+    from phyir.cli import main
+    from phyir.color import luminance
+    from phyir.lighting.clip_regions import FEATURES, RegionModel
+
+    room = lamp_room(80.0)
+    io.save_panorama(room, tmp_path / "bright.exr")
+    exact = RegionModel(math.log(80.0 / float(luminance(room).median())), (0.0,) * len(FEATURES))
+    exact.save(tmp_path / "law.json")
+    out, pano_file = tmp_path / "r.json", str(tmp_path / "bright.exr")
+    assert main(["eval", "--ldr-light", pano_file, "--region-model", str(tmp_path / "law.json"),
+                 "--json", str(out)]) == 0
+    row = json.loads(out.read_text())["bright/regions"]
+    assert row["region_ratio_median"] == pytest.approx(1.0, abs=0.02)
+    (tmp_path / "other.json").write_text('{"weights": [1, 2]}')
+    capsys.readouterr()
+    assert main(["eval", "--ldr-light", pano_file, "--region-model", str(tmp_path / "other.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "other.json: not a clipped-region model" in err

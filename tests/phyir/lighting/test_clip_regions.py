@@ -243,3 +243,27 @@ def test_the_shipped_laws():
     ldr = lamp_panorama(0.5)
     assert recover_clipped(ldr, model="shipped")[1].method == "regions"
     assert recover_clipped(ldr, model="shipped-jpeg")[1].method == "regions-jpeg"
+
+
+def test_the_panoramas_added_to_a_fit(tmp_path):
+    """--add: files as they are, a folder's .hdr/.exr; a missing path, an empty folder or a file of
+    hdri-indoor's validation split (never fitted on) is an error naming it."""
+    import pytest
+
+    from phyir.errors import InputError
+    from phyir.learn.fit_clip_regions import panorama_files
+
+    rooms = tmp_path / "rooms"
+    rooms.mkdir()
+    for name in ("b.exr", "a.hdr", "notes.txt"):
+        (rooms / name).write_bytes(b"")
+    one = tmp_path / "c.exr"
+    one.write_bytes(b"")
+    assert panorama_files([one, rooms]) == [one, rooms / "a.hdr", rooms / "b.exr"]
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "lythwood_room_1k.hdr").write_bytes(b"")
+    for bad, why in ((tmp_path / "nothing.exr", "no such file"), (tmp_path / "empty", "no .hdr or .exr"),
+                     (tmp_path / "lythwood_room_1k.hdr", "validation split")):
+        with pytest.raises(InputError, match=why) as e:
+            panorama_files([bad])
+        assert e.value.path == str(bad)
