@@ -21,8 +21,9 @@ from pathlib import Path
 import torch
 
 from phyir.errors import InputError
+from phyir.io import folder_files
 from phyir.learn.fit_clip_regions import panorama_files, panorama_samples
-from phyir.learn.ldr_pairs import hdr_files
+from phyir.learn.ldr_pairs import HDR_SUFFIXES, hdr_files
 
 BRIGHT = 500.0  # x the median: brighter than all but one training room's cores
 BIG_SR = 0.1  # steradians
@@ -50,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     splits = {"training": hdr_files(a.hdri, "train"), "validation": hdr_files(a.hdri, "val")}
     if a.panos:
-        splits["panos"] = sorted(a.panos.glob("*.hdr")) + sorted(a.panos.glob("*.exr"))
+        splits["panos"] = [Path(f) for f in folder_files(a.panos, HDR_SUFFIXES)]
     try:
         if a.add:
             splits["added"] = panorama_files(a.add)

@@ -34,9 +34,11 @@ from phyir.lighting.clip_regions import (
     FEATURES,
     RegionModel,
     fill_partial,
+    panorama_median,
     partly_clipped,
     region_features,
     region_means,
+    white_pixels,
 )
 from phyir.lighting.hdr_recovery import CLIP_LEVEL, clipped_regions, white_cores
 
@@ -55,9 +57,10 @@ def region_samples(ldr: Tensor, truth: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     if n == 0:
         return torch.zeros(0, len(FEATURES), dtype=torch.float64), torch.zeros(0, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.float64)
-    feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL)
-    area, (true,) = region_means(white_cores(ldr, labels), n, luminance(truth))
-    med = max(float(luminance(ldr).median()), 1e-6)
+    lum = luminance(ldr)
+    med, white = panorama_median(lum), white_pixels(ldr, CLIP_LEVEL, clipped)
+    feats = region_features(ldr, clipped, labels, n, CLIP_LEVEL, lum, white=white, median=med)
+    area, (true,) = region_means(white_cores(ldr, labels, white=white), n, luminance(truth))
     keep = area > 0
     return feats[keep], torch.log(true[keep] / med), area[keep]
 
@@ -146,12 +149,13 @@ def panorama_files(paths: list[Path]) -> list[Path]:
     synth`` folder's rooms too). A missing path, a folder without panoramas or a panorama of the
     validation split (never fitted on) is an :class:`phyir.errors.InputError`."""
     from phyir.errors import InputError
+    from phyir.io import folder_files
     from phyir.learn.ldr_pairs import HDR_SUFFIXES, is_validation
 
     out = []
     for p in map(Path, paths):
         if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.suffix.lower() in HDR_SUFFIXES)
+            found = [Path(f) for f in folder_files(p, HDR_SUFFIXES)]  # (never a temporary of a write)
             if not found:
                 raise InputError(p, "no .hdr or .exr panoramas in this folder")
         elif p.is_file():

@@ -53,7 +53,9 @@ def is_validation(path: str | os.PathLike) -> bool:
 
 def hdr_files(folder: str | os.PathLike, split: str) -> list[Path]:
     """The HDR panoramas of ``folder`` in ``split`` ("train": all but :data:`HDRI_VALIDATION`, "val")."""
-    files = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in HDR_SUFFIXES)
+    from phyir.io import folder_files
+
+    files = [Path(f) for f in folder_files(folder, HDR_SUFFIXES)]
     return [p for p in files if is_validation(p) == (split == "val")]
 
 

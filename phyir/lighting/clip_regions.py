@@ -133,33 +133,43 @@ class Coarse:
         return Coarse(image, clip, rows, cols)
 
 
-def white_pixels(ldr: Tensor, clip: float) -> Tensor:
+def clipped_pixels(ldr: Tensor, clip: float) -> Tensor:
+    """[H,W]: the pixels of a linear 8-bit panorama [3,H,W] with some channel at ``clip``."""
+    return (ldr >= clip).any(0)
+
+
+def white_pixels(ldr: Tensor, clip: float, clipped: Tensor | None = None) -> Tensor:
     """[H,W]: the pixels of a linear 8-bit panorama [3,H,W] that clipped white (some channel at
-    ``clip``, every channel above WHITE_FRACTION of it)."""
-    return (ldr >= clip).any(0) & (ldr >= WHITE_FRACTION * clip).all(0)
+    ``clip``, every channel above WHITE_FRACTION of it; ``clipped``: :func:`clipped_pixels`, where
+    the caller has it)."""
+    return (clipped_pixels(ldr, clip) if clipped is None else clipped) & (ldr >= WHITE_FRACTION * clip).all(0)
 
 
-def partly_clipped(ldr: Tensor, clip: float, white: Tensor | None = None) -> Tensor:
-    """[H,W]: the pixels with some channel at ``clip`` that are not white (:func:`white_pixels`;
-    ``white``: that mask, where the caller has it)."""
-    return (ldr >= clip).any(0) & ~(white_pixels(ldr, clip) if white is None else white)
+def partly_clipped(ldr: Tensor, clip: float, white: Tensor | None = None,
+                   clipped: Tensor | None = None) -> Tensor:
+    """[H,W]: the pixels with some channel at ``clip`` that are not white (``white``:
+    :func:`white_pixels`, ``clipped``: :func:`clipped_pixels`, where the caller has them)."""
+    clipped = clipped_pixels(ldr, clip) if clipped is None else clipped
+    return clipped & ~(white_pixels(ldr, clip, clipped) if white is None else white)
 
 
 def fill_partial(ldr: Tensor, clip: float, gain: float = 1.0, coarse: Coarse | None = None,
-                 white: Tensor | None = None) -> Tensor:
+                 white: Tensor | None = None, clipped: Tensor | None = None) -> Tensor:
     """A linear 8-bit panorama ``[3,H,W]`` whose partly clipped pixels (:func:`partly_clipped`) have
     their clipped channels raised to the hue of the unclipped band around the clipped pixels, matched
     to the pixel's measured channels, then the pixel times ``gain``. Every other pixel is returned
     as it is (white cores are :class:`RegionModel`'s). ``coarse`` (the panorama's :class:`Coarse`
-    view) and ``white`` (:func:`white_pixels`): where the caller has them."""
+    view), ``white`` (:func:`white_pixels`) and ``clipped`` (:func:`clipped_pixels`): where the
+    caller has them."""
     x = ldr.float()
-    partial = partly_clipped(x, clip, white)
+    clipped = clipped_pixels(x, clip) if clipped is None else clipped
+    partial = partly_clipped(x, clip, white, clipped)
     if not bool(partial.any()):
         return x.clone()  # (a new tensor either way: callers write into it)
-    over = x >= clip
-    hue = _band_hue(coarse or Coarse.of(x, over.any(0)))[:, None]
-    # only the partly clipped pixels are gathered (a 360 camera's image is 200 MB)
-    xp, op = x[:, partial], over[:, partial]
+    hue = _band_hue(coarse or Coarse.of(x, clipped))[:, None]
+    # only the partly clipped pixels are gathered and compared (a 360 camera's image is 200 MB)
+    xp = x[:, partial]
+    op = xp >= clip
     level = torch.where(op, torch.zeros_like(xp), xp / hue).amax(0)  # the measured channels' level
     out = x.clone()
     out[:, partial] = torch.where(op, torch.maximum(xp, level * hue), xp) * gain
@@ -174,6 +184,12 @@ def _band_hue(coarse: Coarse) -> Tensor:
     omega = pano.solid_angles(PROFILE_ROWS, 1).expand_as(band)
     hue = (coarse.image[:, band] * omega[band]).sum(1)
     return (hue / hue.max().clamp_min(1e-12)).clamp_min(1e-3)
+
+
+def panorama_median(lum: Tensor) -> float:
+    """The median of a panorama's luminance [H,W], the unit of the law (at least 1e-6: a black
+    panorama has one)."""
+    return max(float(lum.median()), 1e-6)
 
 
 def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Tensor]]:
@@ -191,17 +207,18 @@ def region_means(labels: Tensor, n: int, *maps: Tensor) -> tuple[Tensor, list[Te
 
 def region_features(ldr: Tensor, clipped: Tensor, labels: Tensor, n: int, clip: float,
                     lum: Tensor | None = None, coarse: Coarse | None = None,
-                    white: Tensor | None = None) -> Tensor:
+                    white: Tensor | None = None, median: float | None = None) -> Tensor:
     """[n, len(FEATURES)] features of the clipped regions (``labels`` [H,W], -1 outside; ``clipped``
     [H,W]: :func:`phyir.lighting.hdr_recovery.clipped_regions`) of a linear 8-bit panorama ``ldr
     [3,H,W]`` clipped at ``clip``; ``lum`` (its luminance [H,W]), ``coarse`` (its :class:`Coarse`
-    view) and ``white`` (:func:`white_pixels`): where the caller has them."""
+    view), ``white`` (:func:`white_pixels`) and ``median`` (:func:`panorama_median`): where the
+    caller has them."""
     H, W = ldr.shape[-2:]
     lum = luminance(ldr) if lum is None else lum
-    white = white_pixels(ldr, clip) if white is None else white
+    white = white_pixels(ldr, clip, clipped) if white is None else white
     sin_lat = torch.sin(pano.pixel_lonlat(H, 1, dtype=torch.float64)[1][:, 0])[:, None].expand(H, W)
     area, (lat, white) = region_means(labels, n, sin_lat, white)
-    med = max(float(lum.median()), 1e-6)
+    med = panorama_median(lum) if median is None else median
     profile = _surround_profiles(coarse or Coarse.of(ldr, clipped), labels, n, clip, med)
     return torch.cat((torch.stack((torch.log(area.clamp_min(1e-12)), lat, white), 1), profile), 1)
 

@@ -31,7 +31,9 @@ from phyir.lighting.clip_regions import (
     MODEL_PATH,
     Coarse,
     RegionModel,
+    clipped_pixels,
     fill_partial,
+    panorama_median,
     region_features,
     region_means,
     white_pixels,
@@ -60,7 +62,7 @@ class Recovery:
 def clipped_regions(image: Tensor, clip: float = CLIP_LEVEL) -> tuple[Tensor, Tensor, int]:
     """``(clipped [H,W] bool, labels [H,W] (-1 outside), count)`` of an LDR panorama ``[3,H,W]``."""
     H, W = image.shape[-2:]
-    clipped = (image >= clip).any(0)
+    clipped = clipped_pixels(image, clip)
     rows = min(LABEL_ROWS, H)
     coarse = pano.resize_area(clipped[None].float(), rows, 2 * rows)[0] > 0
     labels, n = components(coarse.numpy())
@@ -95,18 +97,18 @@ def recover_clipped(image: Tensor, clip: float = CLIP_LEVEL,
     # solid angle depends on the row only: [H,1], no full-size map (a 360 camera's is 66 MB)
     omega = pano.solid_angles(H, 1) / W
     lum = luminance(x)
-    med = float(lum.median())
+    med = panorama_median(lum)
     if model is not None:  # the law lifts the white cores; the partly clipped pixels are filled
-        # the coarse view and the white mask once, for the features, the cores and the fill
-        coarse, white = Coarse.of(x, clipped), white_pixels(x, clip)
-        feats = region_features(x, clipped, labels, n, clip, lum, coarse, white)
+        # the coarse view and the masks once, for the features, the cores and the fill
+        coarse, white = Coarse.of(x, clipped), white_pixels(x, clip, clipped)
+        feats = region_features(x, clipped, labels, n, clip, lum, coarse, white, med)
         labels = white_cores(x, labels, clip, white)
         area, (mean,) = region_means(labels, n, lum)
-        target = max(med, 1e-6) * torch.exp(model.log_gain(feats))
-        out = fill_partial(x, clip, model.partial_gain, coarse, white)
+        target = med * torch.exp(model.log_gain(feats))
+        out = fill_partial(x, clip, model.partial_gain, coarse, white, clipped)
     else:
         area, (mean,) = region_means(labels, n, lum)
-        target = max(med, 1e-6) * GAIN * area ** AREA_EXPONENT
+        target = med * GAIN * area ** AREA_EXPONENT
         out = x.clone()
     boost = (area > 0) & (target > mean)
     factor = torch.where(boost, target / mean.clamp_min(1e-6), torch.ones_like(mean)).float()
